@@ -1,0 +1,2 @@
+"""SeaThru-NeRF pipeline."""
+__version__ = "0.1.0"

@@ -1,0 +1,1 @@
+"""The shared numerical core: pure functions and modules, no file I/O."""

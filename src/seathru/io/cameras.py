@@ -1,0 +1,144 @@
+"""The one camera file that training, rendering and evaluation read, whatever the source.
+
+``cameras.json`` (format ``seathru-cameras/1``)::
+
+    {
+      "format": "seathru-cameras/1",
+      "convention": "...",                 # human-readable statement of the conventions below
+      "normalisation": {"centre": [x, y, z], "scale": s},
+      "near": float, "far": float,         # scene-wide bounds, normalised units
+      "source": "simulated|colmap|llff|nerfstudio",
+      "frames": [
+        {"name": "IMG_0001",               # image stem, the key used by every stage
+         "image": "images/IMG_0001.tiff",  # linear image, path relative to this file
+         "mask": "masks/IMG_0001.png",     # optional validity mask, relative path
+         "width": W, "height": H,
+         "fx": ..., "fy": ..., "cx": ..., "cy": ...,   # pinhole, pixels
+         "c2w": [[...4], [...4], [...4], [0, 0, 0, 1]],
+         "near": float, "far": float,      # per-frame bounds, normalised units
+         "split": "train" | "test"}
+      ]
+    }
+
+Conventions:
+- camera axes are OpenCV/COLMAP: x right, y down, z forward (looking along +z);
+- ``c2w`` maps camera coordinates to normalised world coordinates;
+- the centre of pixel (u, v) (column, row) is at (u + 0.5, v + 0.5);
+- normalised world = (source world - centre) * scale, so a distance d in source units is
+  d * scale in normalised units and a coefficient sigma fitted in normalised units is
+  sigma * scale per source unit.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from seathru.errors import PipelineError
+from seathru.io.atomic import write_json
+
+FORMAT = "seathru-cameras/1"
+CONVENTION = ("OpenCV camera axes (x right, y down, z forward); c2w maps camera to normalised "
+              "world; pixel (u, v) centre at (u + 0.5, v + 0.5); normalised = (source - centre) "
+              "* scale")
+
+
+@dataclass
+class Frame:
+    name: str
+    image: str
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    c2w: list[list[float]]
+    near: float
+    far: float
+    split: str = "train"
+    mask: str | None = None
+
+    @property
+    def c2w_array(self) -> np.ndarray:
+        return np.asarray(self.c2w, dtype=np.float64)
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class CameraSet:
+    frames: list[Frame]
+    near: float
+    far: float
+    centre: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    scale: float = 1.0
+    source: str = "unknown"
+    root: Path | None = None  # folder of the camera file; image paths are relative to it
+
+    def split(self, which: str) -> list[Frame]:
+        return [f for f in self.frames if f.split == which]
+
+    def image_path(self, frame: Frame) -> Path:
+        return (self.root or Path(".")) / frame.image
+
+    def mask_path(self, frame: Frame) -> Path | None:
+        return None if frame.mask is None else (self.root or Path(".")) / frame.mask
+
+    def to_dict(self) -> dict:
+        return {
+            "format": FORMAT,
+            "convention": CONVENTION,
+            "normalisation": {"centre": [float(c) for c in self.centre], "scale": float(self.scale)},
+            "near": float(self.near),
+            "far": float(self.far),
+            "source": self.source,
+            "frames": [_frame_dict(f) for f in self.frames],
+        }
+
+
+def _frame_dict(frame: Frame) -> dict:
+    data = asdict(frame)
+    data["c2w"] = [[float(v) for v in row] for row in frame.c2w]
+    if data["mask"] is None:
+        del data["mask"]
+    return data
+
+
+def every_nth_split(names: list[str], test_every: int = 8) -> dict[str, str]:
+    """The paper's split: in sorted name order, image 0, n, 2n, ... are held out for testing."""
+    if test_every <= 0:
+        return {name: "train" for name in names}
+    return {name: ("test" if i % test_every == 0 else "train")
+            for i, name in enumerate(sorted(names))}
+
+
+def write_cameras(path: str | os.PathLike, cameras: CameraSet) -> None:
+    write_json(path, cameras.to_dict())
+
+
+def read_cameras(path: str | os.PathLike) -> CameraSet:
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise PipelineError(f"{path}: camera file not found; run the 'poses' step first") from None
+    except json.JSONDecodeError as exc:
+        raise PipelineError(f"{path}: camera file is not valid JSON ({exc})") from None
+    if data.get("format") != FORMAT:
+        raise PipelineError(f"{path}: expected format {FORMAT!r}, found {data.get('format')!r}")
+    try:
+        frames = [Frame(**frame) for frame in data["frames"]]
+    except TypeError as exc:
+        raise PipelineError(f"{path}: a frame has missing or unknown fields ({exc})") from None
+    norm = data.get("normalisation", {})
+    return CameraSet(frames=frames, near=float(data["near"]), far=float(data["far"]),
+                     centre=list(norm.get("centre", [0.0, 0.0, 0.0])),
+                     scale=float(norm.get("scale", 1.0)), source=data.get("source", "unknown"),
+                     root=path.parent)

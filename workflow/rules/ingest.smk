@@ -1,0 +1,21 @@
+rule ingest:
+    """Decode RAW or images to linear radiance, normalise exposure, white balance, masks."""
+    input:
+        ingest_input,
+    output:
+        directory(f"{RESULTS}/{{dataset}}/ingest"),
+    params:
+        source=ingest_source_flags,
+        flags=flags("ingest"),
+    log:
+        log_file("ingest"),
+    benchmark:
+        benchmark_file("ingest")
+    threads: resource("ingest", "threads")
+    resources:
+        **rule_resources("ingest"),
+    conda:
+        "../../envs/seathru.yaml"
+    shell:
+        "seathru ingest --input {input} --out {output} --workers {threads} {params.source} "
+        "{params.flags} > {log} 2>&1"

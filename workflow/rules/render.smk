@@ -1,0 +1,21 @@
+rule render:
+    """Held-out views and a camera path: full, restored, depth, backscatter, direct; videos."""
+    input:
+        model=rules.train.output.model,
+        poses=rules.poses.output,
+    output:
+        directory(f"{RESULTS}/{{dataset}}/render"),
+    params:
+        flags=flags("render"),
+    log:
+        log_file("render"),
+    benchmark:
+        benchmark_file("render")
+    threads: resource("render", "threads")
+    resources:
+        **rule_resources("render"),
+    conda:
+        "../../envs/seathru.yaml"
+    shell:
+        "seathru render --model {input.model} --cameras {input.poses}/cameras.json "
+        "--out {output} --threads {threads} {params.flags} > {log} 2>&1"

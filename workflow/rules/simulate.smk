@@ -1,0 +1,17 @@
+rule simulate:
+    """Synthetic dive scene with known water, cameras and clean images (source: simulated)."""
+    output:
+        directory(f"{RESULTS}/{{dataset}}/simulate"),
+    params:
+        flags=flags("simulate"),
+    log:
+        log_file("simulate"),
+    benchmark:
+        benchmark_file("simulate")
+    threads: resource("simulate", "threads")
+    resources:
+        **rule_resources("simulate"),
+    conda:
+        "../../envs/seathru.yaml"
+    shell:
+        "seathru simulate --out {output} {params.flags} > {log} 2>&1"
