@@ -45,7 +45,9 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 def write_float_tiff(path: str | os.PathLike, array: np.ndarray) -> None:
     """Write a float32 TIFF atomically (linear images, depth maps)."""
     with atomic_path(path) as tmp:
-        tifffile.imwrite(tmp, np.ascontiguousarray(array, dtype=np.float32))
+        array = np.ascontiguousarray(array, dtype=np.float32)
+        photometric = "rgb" if array.ndim == 3 and array.shape[2] == 3 else "minisblack"
+        tifffile.imwrite(tmp, array, photometric=photometric)
 
 
 def _write_cv2(path: str | os.PathLike, array: np.ndarray, params: list[int] | None = None) -> None:

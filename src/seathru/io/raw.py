@@ -1,0 +1,352 @@
+"""Decoding camera images to linear RGB: RAW through rawpy/LibRaw, JPEG/PNG/TIFF through OpenCV and
+tifffile, plus the EXIF exposure metadata ingest needs.
+
+RAW decoding (``decode_raw``) is LibRaw with every automatic adjustment off, so the output is the
+demosaiced sensor signal ``(raw - black_c) / (white - black_c)`` per CFA channel c:
+
+- black level per channel subtracted, white level from the file (``adjust_maximum_thr=0``: no
+  lowering of the white point from the image content, ``no_auto_bright``: no histogram scaling);
+- unit white balance (``user_wb=[1, 1, 1, 1]``; rawpy's default would be daylight multipliers),
+  camera raw colour space, linear gamma ``(1, 1)``, 16-bit output. White balance and colour
+  conversion are done by ingest afterwards, in float, without clipping;
+- LibRaw's demosaic keeps the native sample of every CFA site (all its open-source algorithms:
+  checked on the real DNG in tests/test_ingest.py); ``half_size`` bins each 2x2 block instead;
+- orientation: decoded with ``user_flip=0`` and rotated with ``seathru.core.linearise.orient``
+  using the file's flip (``raw.sizes.flip`` read before postprocessing, which is what rawpy's
+  default ``user_flip=None`` applies), so the clipping mask, computed on the raw grid, turns with
+  the image.
+
+LibRaw prints some data errors ("Unexpected end of file") on stderr itself; the Python side sees
+them as ``rawpy.LibRawError`` subclasses, turned here into ``DecodeError`` with a reason.
+
+rawpy is imported lazily: worker processes set ``OMP_NUM_THREADS`` before LibRaw's OpenMP runtime
+loads, and ``seathru --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import tifffile
+
+from seathru.core import linearise
+from seathru.core.colour import srgb_to_linear
+
+# exifread logs "File format not recognized" at WARNING for every file it cannot parse; a
+# missing EXIF block is an expected, recorded case here, not a warning.
+logging.getLogger("exifread").setLevel(logging.ERROR)
+
+#: File extensions LibRaw decodes (lower case, with the dot).
+RAW_EXTENSIONS = frozenset(
+    ".3fr .ari .arw .bay .cap .cr2 .cr3 .crw .dcr .dcs .dng .drf .eip .erf .fff .gpr .iiq .k25 "
+    ".kdc .mdc .mef .mos .mrw .nef .nrw .obm .orf .pef .ptx .pxn .r3d .raf .raw .rwl .rw2 .rwz "
+    ".sr2 .srf .srw .sti .x3f".split())
+#: Encoded image extensions (kind decided by bit depth for PNG and TIFF).
+ENCODED_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff"})
+KINDS = ("raw", "linear", "srgb")
+
+SUPPORTED_DEMOSAIC = ("LINEAR", "VNG", "PPG", "AHD", "DCB", "DHT", "AAHD")
+
+
+class DecodeError(Exception):
+    """A file that cannot be used as an image; the message is the reason (the caller names the
+    file)."""
+
+
+@dataclass
+class ExifExposure:
+    """Exposure metadata; None = not recorded. ``orientation`` is the EXIF value 1-8."""
+
+    exposure_time: float | None = None
+    iso: float | None = None
+    f_number: float | None = None
+    orientation: int | None = None
+    source: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass
+class DecodedImage:
+    """A decoded image, oriented for display.
+
+    ``image``: ``(H, W, 3)`` float32 linear (camera raw colour for RAW, as stored otherwise),
+    1.0 = white level / top code. ``saturated`` / ``black_clipped``: ``(H, W)`` bool, before any
+    dilation. ``metadata``: JSON-ready facts for the manifest.
+    """
+
+    image: np.ndarray
+    saturated: np.ndarray
+    black_clipped: np.ndarray
+    kind: str
+    exposure: ExifExposure
+    camera_wb: np.ndarray | None = None
+    colour_matrix: np.ndarray | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+
+# --- EXIF -----------------------------------------------------------------------------------
+
+_EXIF_KEYS = {
+    "exposure_time": ("EXIF ExposureTime", "Image ExposureTime"),
+    "f_number": ("EXIF FNumber", "Image FNumber"),
+    "iso": ("EXIF ISOSpeedRatings", "Image ISOSpeedRatings", "EXIF PhotographicSensitivity",
+            "EXIF RecommendedExposureIndex", "EXIF ISOSpeed"),
+}
+
+
+def _tag_number(tag) -> float | None:
+    try:
+        value = float(tag.values[0])
+    except (AttributeError, IndexError, TypeError, ValueError, ZeroDivisionError):
+        return None
+    return value if math.isfinite(value) and value > 0 else None
+
+
+def read_exif(path: str | Path) -> tuple[ExifExposure, set[str]]:
+    """Exposure time (s), ISO, f-number and orientation from the file's EXIF/TIFF tags (exifread).
+
+    Returns the values and the set of field names whose tag is present (a tag present with a
+    0 value, as in the Canon 550D DNG, means 'not recorded' and must not be replaced by a
+    decoder default).
+    """
+    import exifread
+
+    try:
+        with open(path, "rb") as handle:
+            tags = exifread.process_file(handle, details=False)
+    except Exception:  # noqa: BLE001 - exifread raises many types on odd files; EXIF is optional
+        tags = {}
+    exposure = ExifExposure()
+    present: set[str] = set()
+    for name, keys in _EXIF_KEYS.items():
+        for key in keys:
+            if key in tags:
+                present.add(name)
+                value = _tag_number(tags[key])
+                if value is not None:
+                    setattr(exposure, name, value)
+                    exposure.source[name] = "exif"
+                    break
+    if "Image Orientation" in tags:
+        orientation = _tag_number(tags["Image Orientation"])
+        exposure.orientation = int(orientation) if orientation else None
+    return exposure, present
+
+
+# --- RAW ------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class RawSettings:
+    demosaic: str = "AHD"
+    half_size: bool = False
+    saturation_threshold: float = 0.98
+
+
+def _libraw_message(exc: Exception) -> str:
+    message = exc.args[0] if exc.args else ""
+    if isinstance(message, bytes):
+        message = message.decode("utf-8", "replace")
+    return str(message) or type(exc).__name__
+
+
+def _libraw_reason(exc: Exception) -> str:
+    import rawpy
+
+    message = _libraw_message(exc)
+    if isinstance(exc, rawpy.LibRawFileUnsupportedError):
+        hint = "not a raw format LibRaw supports, or the file is damaged"
+    elif isinstance(exc, rawpy.LibRawIOError):
+        hint = "read error: the file is truncated or damaged"
+    elif isinstance(exc, rawpy.LibRawDataError):
+        hint = "corrupt image data"
+    elif isinstance(exc, (rawpy.LibRawTooBigError, rawpy.LibRawUnsufficientMemoryError,
+                          rawpy.LibRawMemPoolOverflowError)):
+        hint = "too large to decode with the memory available"
+    else:
+        hint = "LibRaw could not decode it"
+    return f"{hint} (LibRaw {type(exc).__name__}: {message})"
+
+
+def _merge_exposure(exif: ExifExposure, present: set[str], other) -> ExifExposure:
+    """Fill fields whose EXIF tag is absent from LibRaw's parse (``raw.other``), which also
+    covers formats exifread cannot parse (RAF, CR3)."""
+    fallback = {"exposure_time": getattr(other, "shutter_speed", None),
+                "iso": getattr(other, "iso_speed", None),
+                "f_number": getattr(other, "aperture", None)}
+    for name, value in fallback.items():
+        if name in present or getattr(exif, name) is not None:
+            continue
+        if value is not None and math.isfinite(float(value)) and float(value) > 0:
+            setattr(exif, name, float(value))
+            exif.source[name] = "libraw"
+    return exif
+
+
+def decode_raw(path: str | Path, settings: RawSettings = RawSettings()) -> DecodedImage:
+    """Decode a camera RAW file to linear camera RGB; raise ``DecodeError`` when it is unusable."""
+    import rawpy
+
+    path = Path(path)
+    if settings.demosaic not in SUPPORTED_DEMOSAIC:
+        raise ValueError(f"demosaic {settings.demosaic!r} is not one of {SUPPORTED_DEMOSAIC}")
+    exif, present = read_exif(path)
+    file_bytes = path.stat().st_size
+    params = rawpy.Params(
+        demosaic_algorithm=rawpy.DemosaicAlgorithm[settings.demosaic],
+        half_size=settings.half_size, user_wb=[1.0, 1.0, 1.0, 1.0],
+        output_color=rawpy.ColorSpace.raw, output_bps=16, gamma=(1.0, 1.0),
+        no_auto_bright=True, adjust_maximum_thr=0.0, user_flip=0)
+    try:
+        with rawpy.imread(str(path)) as raw:
+            mosaic = raw.raw_image_visible  # triggers unpack: most damaged files fail here
+            sizes = raw.sizes
+            flip = int(sizes.flip)  # before postprocess, which overwrites it with user_flip
+            black = [float(v) for v in raw.black_level_per_channel]
+            white = float(raw.white_level)
+            white_c = raw.camera_white_level_per_channel
+            if white_c is None or len(white_c) < 4 or min(white_c) <= 0:
+                white_c = [white] * 4
+            flat = raw.raw_type == rawpy.RawType.Flat and mosaic.ndim == 2
+            if flat:
+                colors = raw.raw_colors_visible
+                saturated_raw, black_raw = linearise.raw_clipping(
+                    mosaic, colors, white_c, settings.saturation_threshold)
+            else:
+                saturated_raw = black_raw = None
+            reason = linearise.invalid_raw_reason(mosaic, file_bytes, sizes.raw_width,
+                                                  sizes.raw_height, saturated_raw)
+            if reason:
+                raise DecodeError(reason)
+            camera_wb = linearise.camera_wb_gains(raw.camera_whitebalance)
+            matrix = linearise.usable_colour_matrix(np.asarray(raw.color_matrix))
+            exif = _merge_exposure(exif, present, raw.other)
+            pattern = "".join(raw.color_desc.decode()[i] for i in raw.raw_pattern.ravel()) \
+                if flat and raw.raw_pattern is not None else None
+            image16 = raw.postprocess(params)
+    except rawpy.LibRawError as exc:
+        raise DecodeError(_libraw_reason(exc)) from exc
+    except rawpy.NotSupportedError as exc:
+        raise DecodeError(f"not supported by this rawpy build: {exc}") from exc
+
+    reason = linearise.invalid_image_reason(image16)
+    if reason:
+        raise DecodeError(reason)
+    shape = image16.shape[:2]
+    if flat and not settings.half_size and saturated_raw.shape == shape:
+        saturated, black_clipped = saturated_raw, black_raw
+    elif flat and settings.half_size and (
+            (saturated_raw.shape[0] + 1) // 2, (saturated_raw.shape[1] + 1) // 2) == shape:
+        saturated = linearise.block_any(saturated_raw, shape)
+        black_clipped = linearise.block_any(black_raw, shape)
+    else:
+        # Non-Bayer sensors or unusual geometry: judge saturation on the output instead.
+        level = (settings.saturation_threshold * white - min(black)) / max(white - min(black), 1)
+        saturated = (image16 >= 65535 * min(level, 1.0)).any(axis=-1)
+        black_clipped = np.zeros(shape, dtype=bool)
+    # Anything LibRaw clipped at its 16-bit ceiling is saturated too.
+    saturated = saturated | (image16 >= 65535).any(axis=-1)
+
+    image = image16.astype(np.float32) / np.float32(65535.0)
+    metadata = {
+        "raw_size": [int(sizes.raw_width), int(sizes.raw_height)],
+        "sensor_size": [int(sizes.width), int(sizes.height)],
+        "flip": flip,
+        "black_level": black,
+        "white_level": white,
+        "cfa_pattern": pattern,
+        "demosaic": "half_size" if settings.half_size else settings.demosaic,
+    }
+    return DecodedImage(
+        image=linearise.orient(image, flip), saturated=linearise.orient(saturated, flip),
+        black_clipped=linearise.orient(black_clipped, flip), kind="raw", exposure=exif,
+        camera_wb=camera_wb, colour_matrix=matrix, metadata=metadata)
+
+
+# --- encoded images (JPEG, PNG, TIFF) -------------------------------------------------------
+
+def _png_bit_depth(path: Path) -> int | None:
+    with open(path, "rb") as handle:
+        header = handle.read(29)
+    if len(header) < 29 or header[:8] != b"\x89PNG\r\n\x1a\n" or header[12:16] != b"IHDR":
+        return None
+    return struct.unpack("B", header[24:25])[0]
+
+
+def detect_kind(path: str | Path) -> str | None:
+    """``raw``, ``linear`` (16-bit or float PNG/TIFF) or ``srgb`` (JPEG, 8-bit PNG/TIFF) from the
+    extension and stored bit depth; None for files that are not images by extension."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in RAW_EXTENSIONS:
+        return "raw"
+    if suffix in (".jpg", ".jpeg"):
+        return "srgb"
+    try:
+        if suffix == ".png":
+            return "linear" if (_png_bit_depth(path) or 8) > 8 else "srgb"
+        if suffix in (".tif", ".tiff"):
+            with tifffile.TiffFile(path) as tif:
+                return "srgb" if tif.pages[0].dtype == np.uint8 else "linear"
+    except Exception:  # noqa: BLE001 - an unreadable header is reported when decoding
+        return "srgb" if suffix == ".png" else "linear"
+    return None
+
+
+def _read_array(path: Path) -> np.ndarray:
+    if path.suffix.lower() in (".tif", ".tiff"):
+        try:
+            with tifffile.TiffFile(path) as tif:
+                array = tif.pages[0].asarray()
+        except Exception as exc:  # noqa: BLE001 - tifffile raises many types on damaged files
+            raise DecodeError(f"cannot be read as a TIFF ({type(exc).__name__}: {exc})") from exc
+        if array.ndim == 3 and array.shape[0] in (3, 4) and array.shape[2] not in (3, 4):
+            array = np.moveaxis(array, 0, -1)  # planar-separate TIFF
+    else:
+        array = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)  # never applies EXIF orientation
+        if array is None:
+            raise DecodeError("cannot be read as an image (corrupt, truncated or unsupported)")
+        if array.ndim == 3:
+            array = cv2.cvtColor(array, cv2.COLOR_BGRA2RGB if array.shape[2] == 4
+                                 else cv2.COLOR_BGR2RGB)
+    if array.ndim == 2:
+        array = np.repeat(array[..., None], 3, axis=-1)
+    if array.ndim != 3 or array.shape[2] < 3:
+        raise DecodeError(f"unsupported image layout {array.shape} (expected H x W x 3)")
+    return array[..., :3]
+
+
+def read_encoded(path: str | Path, kind: str) -> DecodedImage:
+    """Read a JPEG/PNG/TIFF as linear RGB. ``kind='srgb'``: inverse sRGB transfer of the stored
+    values; ``kind='linear'``: the stored values as they are. Integers map to [0, 1] by their top
+    code; the EXIF orientation is applied."""
+    if kind not in ("linear", "srgb"):
+        raise ValueError(f"kind must be 'linear' or 'srgb', not {kind!r}")
+    path = Path(path)
+    codes = _read_array(path)
+    if codes.dtype in (np.uint8, np.uint16):
+        values = codes.astype(np.float32) / np.float32(np.iinfo(codes.dtype).max)
+    elif np.issubdtype(codes.dtype, np.floating):
+        values = codes.astype(np.float32)
+    else:
+        raise DecodeError(f"unsupported sample type {codes.dtype} (use 8/16-bit or float)")
+    reason = linearise.invalid_image_reason(values)
+    if reason:
+        raise DecodeError(reason)
+    if kind == "srgb":
+        values = srgb_to_linear(values).astype(np.float32)
+    saturated, black_clipped = linearise.encoded_clipping(codes)
+    exif, _ = read_exif(path)
+    flip = linearise.exif_orientation_to_flip(exif.orientation)
+    metadata = {"bit_depth": int(codes.dtype.itemsize * 8), "sample_type": str(codes.dtype),
+                "flip": flip}
+    return DecodedImage(
+        image=linearise.orient(values, flip), saturated=linearise.orient(saturated, flip),
+        black_clipped=linearise.orient(black_clipped, flip), kind=kind, exposure=exif,
+        metadata=metadata)

@@ -1,0 +1,519 @@
+"""Tests of the ingest step: RAW/JPEG/PNG decoding to linear, exposure normalisation, white
+balance, clipping masks, bad-input handling, and a round trip through the simulator."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import tifffile
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import ndimage
+from skimage.transform import downscale_local_mean
+
+from seathru.core import linearise
+from seathru.errors import PipelineError
+from seathru.io import raw as rawio
+from seathru.steps import ingest
+
+rawpy = pytest.importorskip("rawpy")
+
+DNG = "raw/canon550d_colorchart.dng"
+KDC = "raw/kodak_dc50.kdc"
+ONE_CODE = 1.0 / 65535.0
+
+
+def run_ingest(*argv) -> dict:
+    """Run ``seathru ingest`` in-process; return the manifest."""
+    parser = argparse.ArgumentParser()
+    ingest.add_arguments(parser)
+    args = parser.parse_args([str(a) for a in argv])
+    ingest.run(args)
+    return json.loads((Path(args.out) / "manifest.json").read_text())
+
+
+def link_files(folder: Path, files: dict[str, Path]) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, target in files.items():
+        os.symlink(target, folder / name)
+    return folder
+
+
+def bad_raw_files(shared_data: Path) -> dict[str, Path]:
+    """The 9 damaged files (5 stripped, 4 truncated) under names with distinct stems."""
+    files = sorted((shared_data / "raw" / "bad").glob("*/*"))
+    assert len(files) == 9, files
+    return {f"{p.parent.name}_{p.stem}_{p.suffix[1:]}{p.suffix}": p for p in files}
+
+
+def raw_reference(path: Path):
+    """The raw mosaic, CFA colours and levels, read directly with rawpy."""
+    with rawpy.imread(str(path)) as raw:
+        return (raw.raw_image_visible.astype(np.float64), raw.raw_colors_visible.copy(),
+                np.array(raw.black_level_per_channel, dtype=np.float64), float(raw.white_level))
+
+
+def expected_native(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(raw - black) / (white - black) per CFA site (>= 0), and the output channel of each site."""
+    mosaic, colours, black, white = raw_reference(path)
+    expected = np.clip((mosaic - black[colours]) / (white - black[colours]), 0.0, None)
+    return expected, np.where(colours == 3, 1, colours)
+
+
+# --- RAW decoding on real files -------------------------------------------------------------
+
+@pytest.mark.parametrize("demosaic", ["LINEAR", "AHD"])
+def test_dng_linear_output_is_black_white_normalised_raw(shared_data, demosaic):
+    decoded = rawio.decode_raw(shared_data / DNG, rawio.RawSettings(demosaic=demosaic))
+    meta = decoded.metadata
+    assert meta["black_level"] == [2056.0] * 4
+    assert meta["white_level"] == 15000.0
+    assert meta["cfa_pattern"] == "RGGB"
+    assert meta["raw_size"] == [1888, 1182]
+    assert meta["flip"] == 0
+    expected, channel = expected_native(shared_data / DNG)
+    assert decoded.image.shape == expected.shape + (3,)
+    assert decoded.image.dtype == np.float32
+    assert expected.max() > 0.5  # the chart's white patch: the check covers the range
+    # Demosaicing keeps each CFA site's own sample; only the missing channels are interpolated.
+    native = np.take_along_axis(decoded.image, channel[..., None], axis=2)[..., 0]
+    np.testing.assert_allclose(native, expected, rtol=0, atol=ONE_CODE)
+    # Interpolated channels: over 16x16 blocks, each channel's mean matches its native samples'.
+    height, width = (s // 16 * 16 for s in expected.shape)
+    for c in range(3):
+        sites = (channel == c)[:height, :width].reshape(height // 16, 16, width // 16, 16)
+        values = expected[:height, :width].reshape(sites.shape)
+        native_mean = (values * sites).sum(axis=(1, 3)) / sites.sum(axis=(1, 3))
+        output_mean = decoded.image[:height, :width, c].reshape(sites.shape).mean(axis=(1, 3))
+        relative = np.abs(output_mean - native_mean) / np.maximum(native_mean, 1e-3)
+        assert np.median(relative) < 0.02, (c, np.median(relative))
+
+
+def test_dng_half_size_bins_each_cfa_block(shared_data):
+    decoded = rawio.decode_raw(shared_data / DNG, rawio.RawSettings(half_size=True))
+    expected, _ = expected_native(shared_data / DNG)  # RGGB: R (0,0), G (0,1) (1,0), B (1,1)
+    assert decoded.image.shape == (578, 867, 3)
+    np.testing.assert_allclose(decoded.image[..., 0], expected[0::2, 0::2], atol=ONE_CODE)
+    np.testing.assert_allclose(decoded.image[..., 2], expected[1::2, 1::2], atol=ONE_CODE)
+    np.testing.assert_allclose(decoded.image[..., 1],
+                               (expected[0::2, 1::2] + expected[1::2, 0::2]) / 2, atol=2 * ONE_CODE)
+
+
+def test_kdc_decodes_with_exposure_metadata(shared_data):
+    decoded = rawio.decode_raw(shared_data / KDC, rawio.RawSettings(demosaic="LINEAR"))
+    assert decoded.image.shape == (512, 768, 3)
+    expected, channel = expected_native(shared_data / KDC)
+    native = np.take_along_axis(decoded.image, channel[..., None], axis=2)[..., 0]
+    np.testing.assert_allclose(native, expected, atol=ONE_CODE)
+    exposure = decoded.exposure
+    assert exposure.exposure_time == pytest.approx(87 / 20000)   # EXIF 87/20000 s
+    assert exposure.f_number == pytest.approx(6.2)               # EXIF 31/5
+    assert exposure.iso == pytest.approx(84)                     # not in EXIF: from LibRaw
+    assert exposure.source == {"exposure_time": "exif", "f_number": "exif", "iso": "libraw"}
+
+
+def test_dng_without_exposure_metadata_reads_as_missing(shared_data):
+    # The 550D DNG stores ExposureTime/FNumber/ISO as 0; LibRaw reports 1 s and f/1 for them.
+    decoded = rawio.decode_raw(shared_data / DNG, rawio.RawSettings(half_size=True))
+    assert (decoded.exposure.exposure_time, decoded.exposure.iso, decoded.exposure.f_number) == (
+        None, None, None)
+
+
+def test_saturation_mask_is_computed_on_the_raw_grid(shared_data):
+    threshold = 0.7  # the real file has no clipped pixels; lower the bar to get some
+    decoded = rawio.decode_raw(shared_data / DNG, rawio.RawSettings(
+        demosaic="LINEAR", saturation_threshold=threshold))
+    mosaic, _, _, white = raw_reference(shared_data / DNG)
+    expected = mosaic >= threshold * white
+    assert 0 < expected.sum() < expected.size / 10
+    np.testing.assert_array_equal(decoded.saturated, expected)
+    assert not decoded.black_clipped.any()  # raw values stay above the ADC floor
+
+    half = rawio.decode_raw(shared_data / DNG, rawio.RawSettings(
+        half_size=True, saturation_threshold=threshold))
+    np.testing.assert_array_equal(half.saturated,
+                                  expected.reshape(578, 2, 867, 2).any(axis=(1, 3)))
+
+
+def test_orientation_matches_libraw_flip(shared_data):
+    """``orient`` of the unrotated output equals LibRaw's own output for every flip code."""
+    params = dict(half_size=True, user_wb=[1, 1, 1, 1], output_color=rawpy.ColorSpace.raw,
+                  gamma=(1, 1), no_auto_bright=True, output_bps=16)
+    with rawpy.imread(str(shared_data / KDC)) as raw:
+        base = raw.postprocess(user_flip=0, **params)
+        for flip in range(1, 8):
+            np.testing.assert_array_equal(linearise.orient(base, flip),
+                                          raw.postprocess(user_flip=flip, **params))
+
+
+def test_srgb_colour_matches_libraw_conversion(shared_data):
+    """Camera WB then ``color_matrix`` on the unit-WB raw decode = LibRaw's own sRGB output."""
+    decoded = rawio.decode_raw(shared_data / DNG, rawio.RawSettings(half_size=True))
+    assert decoded.colour_matrix is not None and decoded.camera_wb is not None
+    ours = linearise.apply_colour(decoded.image, decoded.camera_wb, decoded.colour_matrix)
+    with rawpy.imread(str(shared_data / DNG)) as raw:
+        libraw = raw.postprocess(
+            half_size=True, user_wb=[*decoded.camera_wb, decoded.camera_wb[1]], user_flip=0,
+            output_color=rawpy.ColorSpace.sRGB, gamma=(1, 1), no_auto_bright=True,
+            adjust_maximum_thr=0.0, output_bps=16).astype(np.float64) / 65535.0
+    inside = ((libraw > 0.001) & (libraw < 0.99)).all(axis=-1)  # LibRaw clips to [0, 1]
+    assert inside.mean() > 0.5
+    np.testing.assert_allclose(ours[inside], libraw[inside], atol=3e-4)
+
+
+# --- bad input ------------------------------------------------------------------------------
+
+def test_each_bad_raw_file_is_rejected_with_a_reason(shared_data):
+    for path in bad_raw_files(shared_data).values():
+        with pytest.raises(rawio.DecodeError) as info:
+            rawio.decode_raw(path, rawio.RawSettings(half_size=True))
+        reason = str(info.value)
+        assert len(reason) > 20, (path.name, reason)
+        assert any(word in reason for word in ("truncated", "stripped", "damaged", "corrupt",
+                                               "missing")), (path.name, reason)
+
+
+def test_mixed_dataset_keeps_good_files_and_names_each_reject(shared_data, tmp_path):
+    bad = bad_raw_files(shared_data)
+    folder = link_files(tmp_path / "dive", {
+        "canon550d_colorchart.dng": shared_data / DNG, "kodak_dc50.kdc": shared_data / KDC,
+        "kodak_dc50.DNG": shared_data / DNG,  # same stem as the KDC: rejected as a duplicate
+        "notes.txt": shared_data / "README.md", **bad})
+    manifest = run_ingest("--input", folder, "--out", tmp_path / "out", "--half-size",
+                          "--min-images", 2, "--downscale", 2, "--workers", 2)
+    out = tmp_path / "out"
+    assert [im["name"] for im in manifest["images"]] == ["canon550d_colorchart", "kodak_dc50"]
+    assert manifest["input"]["kind"] == "raw" and manifest["input"]["ignored"] == ["notes.txt"]
+    rejected = {r["file"]: r["reason"] for r in manifest["rejected"]}
+    assert set(rejected) == set(bad) | {"kodak_dc50.kdc"}
+    assert "duplicate" in rejected["kodak_dc50.kdc"]  # sorted order: .DNG is taken first
+    assert all(len(reason) > 20 for reason in rejected.values())
+    for image in manifest["images"]:
+        linear = tifffile.imread(out / image["linear"])
+        assert linear.shape == (image["height"], image["width"], 3)
+        mask = cv2.imread(str(out / image["mask"]), cv2.IMREAD_UNCHANGED)
+        assert mask.shape == linear.shape[:2] and set(np.unique(mask)) <= {0, 255}
+        small = image["downscaled"]["2"]
+        assert tifffile.imread(out / small["linear"]).shape == (small["height"], small["width"],
+                                                                3)
+        assert cv2.imread(str(out / image["matching"])).shape[:2] == linear.shape[:2]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dive", "out"]  # no temp left over
+
+
+def test_only_bad_files_fail_and_leave_previous_output(shared_data, tmp_path):
+    files = bad_raw_files(shared_data)
+    folder = link_files(tmp_path / "dive", files)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "previous.txt").write_text("an earlier, complete run")
+    with pytest.raises(PipelineError) as info:
+        run_ingest("--input", folder, "--out", out, "--half-size", "--workers", 1)
+    message = str(info.value)
+    assert "only 0 usable image(s) of 9" in message and "9 rejected" in message
+    assert all(name in message for name in files)
+    assert (out / "previous.txt").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dive", "out"]
+
+
+def test_invalid_raw_reasons():
+    rng = np.random.default_rng(0)
+    photo = rng.integers(500, 4000, size=(64, 96), dtype=np.uint16)
+    assert linearise.invalid_raw_reason(photo, 64 * 96 * 2, 96, 64) is None
+    assert "0x0" in linearise.invalid_raw_reason(photo[:0], 1000, 0, 0)
+    assert "stripped or truncated" in linearise.invalid_raw_reason(photo, 100, 96, 64)
+    constant = np.zeros_like(photo)
+    constant[0, :5] = 7
+    assert "share one value" in linearise.invalid_raw_reason(constant, 64 * 96 * 2, 96, 64)
+    # A mostly saturated frame is a real (overexposed) photo: judged on its unsaturated part.
+    bright = photo.copy()
+    bright[:60] = 4095
+    assert linearise.invalid_raw_reason(bright, 64 * 96 * 2, 96, 64, bright >= 4095) is None
+    assert "constant" in linearise.invalid_image_reason(np.zeros((4, 4, 3)))
+
+
+# --- encoded inputs -------------------------------------------------------------------------
+
+def _srgb_decode_reference(code: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 inverse transfer in float64, written out independently of the package."""
+    v = code.astype(np.float64) / 255.0
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+@pytest.fixture(scope="module")
+def reef(shared_data, tmp_path_factory) -> Path:
+    names = sorted(p.name for p in (shared_data / "d3_reef").glob("*.jpg"))[:4]
+    return link_files(tmp_path_factory.mktemp("reef") / "images",
+                      {n: shared_data / "d3_reef" / n for n in names})
+
+
+def test_reef_jpegs_follow_the_inverse_srgb_curve(reef, tmp_path):
+    manifest = run_ingest("--input", reef, "--out", tmp_path / "out", "--wb", "none",
+                          "--workers", 1)
+    assert manifest["input"]["kind"] == "srgb" and manifest["colour_space"] == "as stored"
+    assert len(manifest["images"]) == 4
+    for image in manifest["images"]:
+        assert image["exposure_factor"] == 1.0 and image["exposure_time"] is None
+        codes = cv2.cvtColor(cv2.imread(str(reef / image["source"])), cv2.COLOR_BGR2RGB)
+        linear = tifffile.imread(tmp_path / "out" / image["linear"])
+        assert linear.shape == codes.shape == (540, 720, 3)
+        # Exact values at a few pixels, dark (linear segment) and bright (power segment).
+        flat = codes.reshape(-1, 3)
+        for code in (5, 30, 120, 250):
+            index = np.argmin(np.abs(flat[:, 0].astype(int) - code))
+            pixel = np.unravel_index(index, codes.shape[:2])
+            np.testing.assert_allclose(linear[pixel], _srgb_decode_reference(codes[pixel]),
+                                       rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(linear, _srgb_decode_reference(codes), rtol=1e-5, atol=1e-7)
+        # Clipped codes (0 or 255 in any channel) are invalid, and so are their neighbours.
+        mask = cv2.imread(str(tmp_path / "out" / image["mask"]), cv2.IMREAD_UNCHANGED) > 0
+        clipped = ((codes == 0) | (codes == 255)).any(axis=-1)
+        np.testing.assert_array_equal(~mask, ndimage.binary_dilation(clipped, np.ones((3, 3))))
+        assert image["clipped_fraction"] == pytest.approx(1 - mask.mean())
+
+
+@pytest.mark.parametrize("stats_pixels", [540 * 720, 20_000])
+def test_percentile_white_balance_puts_each_channel_percentile_at_one(reef, tmp_path,
+                                                                      stats_pixels):
+    manifest = run_ingest("--input", reef, "--out", tmp_path / "out", "--wb", "percentile",
+                          "--stats-pixels", stats_pixels, "--workers", 1)
+    # Every pixel sampled: exact. A subsample (bounded memory): within the 8-bit code step
+    # (~1 % near white), which is what a subsample can resolve on JPEG input.
+    tolerance = 1e-4 if stats_pixels >= 540 * 720 else 0.02
+    outputs = np.stack([tifffile.imread(tmp_path / "out" / im["linear"])
+                        for im in manifest["images"]]).reshape(-1, 3)
+    np.testing.assert_allclose(np.percentile(outputs, 99.8, axis=0), 1.0, rtol=tolerance)
+    inputs = np.stack([_srgb_decode_reference(cv2.cvtColor(
+        cv2.imread(str(reef / im["source"])), cv2.COLOR_BGR2RGB)) for im in manifest["images"]])
+    reference_gains = 1.0 / np.percentile(inputs.reshape(-1, 3), 99.8, axis=0)
+    np.testing.assert_allclose(manifest["white_balance"]["gains"], reference_gains,
+                               rtol=tolerance)
+    assert reference_gains[0] > 1.2 * reference_gains[2]  # the water cast: red is weakest
+    matching = cv2.imread(str(tmp_path / "out" / manifest["images"][0]["matching"]))
+    assert matching.dtype == np.uint8 and 60 < np.median(matching) < 180  # mid-grey-ish
+
+
+def _write_tiff16(path: Path, image: np.ndarray, exposure_time: float | None, iso: int = 100,
+                  f_number: float = 4.0) -> None:
+    tags = []
+    if exposure_time is not None:
+        tags = [(33434, 5, 1, (1, round(1 / exposure_time)), True),
+                (33437, 5, 1, (round(f_number * 10), 10), True), (34855, 3, 1, iso, True)]
+    tifffile.imwrite(path, image, photometric="rgb", extratags=tags)
+
+
+def test_exposure_normalisation_equalises_the_same_scene(tmp_path):
+    rng = np.random.default_rng(1)
+    scene = rng.uniform(0.02, 0.3, size=(24, 32, 3))  # radiance at 1/100 s, ISO 100, f/4
+    folder = tmp_path / "linear_in"
+    folder.mkdir()
+    shots = {"a": (1 / 100, 100, 4.0), "b": (1 / 50, 100, 4.0), "c": (1 / 100, 400, 8.0),
+             "d": (1 / 200, 100, 2.0)}
+    for name, (t, iso, n) in shots.items():
+        relative = (t * iso / n ** 2) / (1 / 100 * 100 / 16)
+        _write_tiff16(folder / f"{name}.tif", np.round(scene * relative * 65535).astype(np.uint16),
+                      t, iso, n)
+    manifest = run_ingest("--input", folder, "--out", tmp_path / "out", "--wb", "none",
+                          "--workers", 1)
+    assert manifest["input"]["kind"] == "linear"
+    factors = {im["name"]: im["exposure_factor"] for im in manifest["images"]}
+    # E = t * ISO / N^2 = (1, 2, 1, 2) x 1/1600; median 1.5/1600
+    assert factors == pytest.approx({"a": 1.5, "b": 0.75, "c": 1.5, "d": 0.75})
+    outputs = [tifffile.imread(tmp_path / "out" / im["linear"]) for im in manifest["images"]]
+    for output in outputs:
+        np.testing.assert_allclose(output, outputs[0], rtol=2e-3, atol=2e-5)
+    np.testing.assert_allclose(outputs[0], scene * 1.5, rtol=2e-3, atol=2e-5)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.tuples(st.floats(1e-4, 2.0), st.floats(50, 12800), st.floats(1.0, 22.0)),
+                min_size=1, max_size=12),
+       st.floats(1e-3, 1.0))
+def test_exposure_factors_undo_exposure(shots, radiance):
+    times, isos, fnumbers = zip(*shots)
+    observed = np.array([radiance * t * s / n ** 2 for t, s, n in shots])
+    norm = linearise.exposure_normalisation(times, isos, fnumbers)
+    normalised = observed * norm.factors
+    reference = radiance * np.median([t * s / n ** 2 for t, s, n in shots])
+    np.testing.assert_allclose(normalised, reference, rtol=1e-9)
+    assert not norm.unknown.any() and norm.fields_used == linearise.EXPOSURE_FIELDS
+
+
+def test_exposure_factors_with_missing_metadata():
+    norm = linearise.exposure_normalisation([0.01, 0.02, None], [None] * 3, [2.0, 2.0, 2.0])
+    assert norm.fields_used == ("exposure_time", "f_number")  # no ISO anywhere: left out
+    # E = t / N^2 = (0.0025, 0.005); median 0.00375
+    np.testing.assert_allclose(norm.factors, [1.5, 0.75, 1.0])
+    assert norm.unknown.tolist() == [False, False, True]
+    assert norm.warnings[2] and "exposure_time" in norm.warnings[2][0]
+    nothing = linearise.exposure_normalisation([None, 0.0], [None, None], [None, None])
+    assert nothing.fields_used == () and nothing.factors.tolist() == [1.0, 1.0]
+    assert all(w for w in nothing.warnings)
+
+
+def test_linear_png_subfolder_downscale_and_max_size(tmp_path):
+    rng = np.random.default_rng(2)
+    folder = tmp_path / "release" / "Images_wb"  # SeaThru-NeRF release spelling
+    folder.mkdir(parents=True)
+    images = {}
+    for name in ("i1", "i2", "i3"):
+        codes = rng.integers(1, 65535, size=(40, 60, 3), dtype=np.uint16)
+        codes[5, 7, 1] = 65535  # saturated
+        images[name] = codes
+        cv2.imwrite(str(folder / f"{name}.png"), cv2.cvtColor(codes, cv2.COLOR_RGB2BGR))
+    manifest = run_ingest("--input", tmp_path / "release", "--subdir", "images_wb", "--out",
+                          tmp_path / "out", "--wb", "none", "--downscale", 2, "--workers", 1)
+    assert manifest["input"]["kind"] == "linear"
+    out = tmp_path / "out"
+    for image in manifest["images"]:
+        expected = images[image["name"]] / 65535.0
+        linear = tifffile.imread(out / image["linear"])
+        np.testing.assert_allclose(linear, expected, rtol=1e-6)
+        np.testing.assert_allclose(tifffile.imread(out / image["downscaled"]["2"]["linear"]),
+                                   downscale_local_mean(expected, (2, 2, 1)), rtol=1e-5)
+        mask = cv2.imread(str(out / image["mask"]), cv2.IMREAD_UNCHANGED) > 0
+        assert not mask[4:7, 6:9].any() and mask.sum() == mask.size - 9
+        small_mask = cv2.imread(str(out / image["downscaled"]["2"]["mask"]),
+                                cv2.IMREAD_UNCHANGED) > 0
+        assert (~small_mask).sum() == 4  # every 2x2 block touching the 3x3 hole
+
+    capped = run_ingest("--input", folder, "--out", tmp_path / "capped", "--wb", "none",
+                        "--max-size", 30, "--matching-max-size", 15, "--workers", 1)
+    image = capped["images"][0]
+    assert (image["width"], image["height"]) == (30, 20)
+    assert image["matching_size"] == [15, 10]
+    np.testing.assert_allclose(tifffile.imread(tmp_path / "capped" / image["linear"]),
+                               downscale_local_mean(images["i1"] / 65535.0, (2, 2, 1)), rtol=1e-5)
+
+
+def test_file_selection_kinds_duplicates_and_hints(tmp_path):
+    folder = tmp_path / "mixed"
+    folder.mkdir()
+    for name in ("IMG_1.dng", "IMG_2.nef"):
+        (folder / name).write_bytes(b"raw")  # selection looks at names only
+    cv2.imwrite(str(folder / "IMG_1.jpg"), np.zeros((4, 4, 3), np.uint8))
+    (folder / "IMG_1.xmp").write_text("sidecar")
+    selected, rejected, detection = ingest.select_files(folder, "auto")
+    assert [(p.name, n, k) for p, n, k in selected] == [("IMG_1.dng", "IMG_1", "raw"),
+                                                        ("IMG_2.nef", "IMG_2", "raw")]
+    assert [r["file"] for r in rejected] == ["IMG_1.jpg"] and detection["ignored"] == ["IMG_1.xmp"]
+
+    selected, rejected, _ = ingest.select_files(folder, "srgb")
+    assert [p.name for p, _, _ in selected] == ["IMG_1.jpg"] and len(rejected) == 2
+
+    pngs = tmp_path / "pngs"
+    pngs.mkdir()
+    cv2.imwrite(str(pngs / "a.png"), np.zeros((4, 4, 3), np.uint16))
+    tifffile.imwrite(pngs / "a.tif", np.zeros((4, 4, 3), np.uint16))
+    selected, rejected, detection = ingest.select_files(pngs, "auto")
+    assert detection["kind"] == "linear" and [p.name for p, _, _ in selected] == ["a.png"]
+    assert "duplicate" in rejected[0]["reason"] and rejected[0]["file"] == "a.tif"
+
+    with pytest.raises(PipelineError, match="subfolders with images: mixed, pngs"):
+        ingest.select_files(tmp_path, "auto")
+    with pytest.raises(PipelineError, match="subfolders: mixed, pngs"):
+        ingest.resolve_input(tmp_path, "images_wb")
+
+
+# --- pure helpers ---------------------------------------------------------------------------
+
+def test_exif_orientation_codes():
+    image = np.arange(12).reshape(3, 4)
+    for orientation, expected in [(1, image), (3, np.rot90(image, 2)), (6, np.rot90(image, -1)),
+                                  (8, np.rot90(image, 1)), (2, image[:, ::-1]),
+                                  (4, image[::-1]), (5, image.T), (7, np.rot90(image, 2).T)]:
+        flip = linearise.exif_orientation_to_flip(orientation)
+        np.testing.assert_array_equal(linearise.orient(image, flip), expected)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 9), st.integers(1, 9), st.integers(0, 2**31 - 1))
+def test_block_any_and_dilation_against_reference(height, width, seed):
+    mask = np.random.default_rng(seed).random((height, width)) < 0.1
+    shape = ((height + 1) // 2, (width + 1) // 2)
+    reference = np.zeros(shape, dtype=bool)
+    for r in range(height):
+        for c in range(width):
+            reference[r // 2, c // 2] |= mask[r, c]
+    np.testing.assert_array_equal(linearise.block_any(mask, shape), reference)
+    np.testing.assert_array_equal(linearise.dilate_invalid(mask, 1),
+                                  ndimage.binary_dilation(mask, np.ones((3, 3), bool)))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(90.0, 100.0))
+def test_percentile_gains_against_float64_reference(seed, percentile):
+    samples = np.random.default_rng(seed).gamma(2.0, [0.05, 0.1, 0.2], size=(500, 3))
+    gains, levels = linearise.percentile_gains(samples.astype(np.float32), percentile)
+    reference = np.percentile(samples, percentile, axis=0)
+    np.testing.assert_allclose(levels, reference, rtol=1e-5)
+    np.testing.assert_allclose(gains * reference, 1.0, rtol=1e-5)
+
+
+def test_camera_gains_and_stat_sampling():
+    np.testing.assert_allclose(linearise.camera_wb_gains([1.0, 0.4, 0.68, 0.0]), [2.5, 1, 1.7])
+    assert linearise.camera_wb_gains([0.0, 0.0, 0.0, 0.0]) is None
+    gains = linearise.dataset_camera_gains([np.array([2.0, 1, 1.5]), None,
+                                            np.array([2.4, 1, 1.7]), np.array([2.2, 1, 1.6])])
+    np.testing.assert_allclose(gains, [2.2, 1, 1.6])
+    image = np.random.default_rng(3).random((301, 402, 3)).astype(np.float32)
+    samples = linearise.sample_pixels(image, 10_000)
+    assert 5_000 < len(samples) <= 10_000
+    np.testing.assert_array_equal(samples[0], image[0, 0])
+
+
+# --- round trip through the simulator -------------------------------------------------------
+
+def test_simulated_dngs_round_trip_to_the_water_images(tmp_path):
+    simulate = pytest.importorskip("seathru.steps.simulate",
+                                   reason="seathru simulate is not built yet")
+    parser = argparse.ArgumentParser()
+    simulate.add_arguments(parser)
+    sim = tmp_path / "sim"
+    simulate.run(parser.parse_args(["--out", str(sim), "--views", "4", "--width", "96",
+                                    "--height", "72", "--seed", "3"]))
+    truth_dir = sim / "truth" / "water"
+    if not truth_dir.is_dir() or not (sim / "raw").is_dir():
+        pytest.skip("the simulator does not write raw/ and truth/water/ (layout changed?)")
+
+    def ratios(manifest: dict, out: Path) -> np.ndarray:
+        """Per image and channel, median of linear output / true water image (valid pixels)."""
+        result = []
+        for image in manifest["images"]:
+            linear = tifffile.imread(out / image["linear"]).astype(np.float64)
+            truth = tifffile.imread(truth_dir / f"{image['name']}.tiff").astype(np.float64)
+            valid = cv2.imread(str(out / image["mask"]), cv2.IMREAD_UNCHANGED) > 0
+            valid &= (truth > 0.02).all(axis=-1)
+            result.append(np.median(linear[valid] / truth[valid], axis=0))
+        return np.array(result)
+
+    manifest = run_ingest("--input", sim, "--subdir", "raw", "--out", tmp_path / "out",
+                          "--wb", "none", "--workers", 1)
+    assert len(manifest["images"]) == 4 and not manifest["rejected"]
+    times = [im["exposure_time"] for im in manifest["images"]]
+    assert max(times) / min(times) > 1.2  # the views really differ in exposure
+    normalised = ratios(manifest, tmp_path / "out")
+    scale = np.median(normalised)
+    # One global scale for every image and channel: same surface, same value.
+    np.testing.assert_allclose(normalised, scale, rtol=0.02)
+
+    # Pixel level: linear = scale * truth within noise and demosaic error.
+    image = manifest["images"][0]
+    linear = tifffile.imread(tmp_path / "out" / image["linear"])
+    truth = tifffile.imread(truth_dir / f"{image['name']}.tiff")
+    valid = (cv2.imread(str(tmp_path / "out" / image["mask"]), cv2.IMREAD_UNCHANGED) > 0) & (
+        truth > 0.02).all(axis=-1)
+    relative = np.abs(linear[valid] - scale * truth[valid]) / (scale * truth[valid])
+    assert np.median(relative) < 0.05
+
+    # Without normalisation the ratios follow the exposure times instead.
+    raw = run_ingest("--input", sim / "raw", "--out", tmp_path / "raw_out", "--wb", "none",
+                     "--no-exposure-normalise", "--workers", 1)
+    unnormalised = ratios(raw, tmp_path / "raw_out").mean(axis=1)
+    np.testing.assert_allclose(unnormalised / unnormalised[0], np.array(times) / times[0],
+                               rtol=0.02)
