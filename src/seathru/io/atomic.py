@@ -15,6 +15,13 @@ from pathlib import Path
 from typing import Any, Iterator
 
 
+def _default_mode(directory: bool) -> int:
+    """The mode a plain open()/mkdir() would give (mkstemp/mkdtemp use 0600/0700)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return (0o777 if directory else 0o666) & ~umask
+
+
 @contextlib.contextmanager
 def atomic_path(destination: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path next to ``destination``; move it into place if the block succeeds.
@@ -34,6 +41,7 @@ def atomic_path(destination: str | os.PathLike, suffix: str | None = None) -> It
         if tmp.exists():
             with open(tmp, "rb") as fh:
                 os.fsync(fh.fileno())
+            os.chmod(tmp, _default_mode(directory=False))
         os.replace(tmp, destination)
     finally:
         if tmp.exists():
@@ -52,6 +60,7 @@ def atomic_dir(destination: str | os.PathLike) -> Iterator[Path]:
                                 dir=destination.parent))
     try:
         yield tmp
+        os.chmod(tmp, _default_mode(directory=True))
         if destination.exists():
             old = destination.with_name(f".{destination.name}.old")
             if old.exists():

@@ -1,0 +1,311 @@
+"""The synthetic dive simulator: ray casting, water model, sensor, DNG round trip, CLI output."""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+
+import exifread
+import numpy as np
+import pytest
+import rawpy
+import tifffile
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from seathru.cli import main as cli_main
+from seathru.core import scene as scene_mod
+from seathru.core import sensor as sensor_mod
+from seathru.core.water import PRESETS, WaterParams, water_image, water_params
+from seathru.io.cameras import read_cameras
+from seathru.io.dng import decode_linear, read_dng_metadata
+from seathru.steps.simulate import SimulationOptions, simulate
+
+VIEWS, WIDTH, HEIGHT = 4, 96, 72
+NAMES = [f"dive_{i:04d}" for i in range(VIEWS)]
+
+
+@pytest.fixture(scope="module")
+def dive(tmp_path_factory):
+    """A small default-water orbit written through the CLI."""
+    out = tmp_path_factory.mktemp("sim") / "dive"
+    code = cli_main(["simulate", "--out", str(out), "--views", str(VIEWS), "--width", str(WIDTH),
+                     "--height", str(HEIGHT), "--seed", "3"])
+    assert code == 0
+    return out
+
+
+@functools.cache
+def _flat_scene() -> scene_mod.Scene:
+    """Nothing but the plane z = 0."""
+    return scene_mod.build_scene({}, seed=0, seabed=scene_mod.Seabed(amplitude=0.0), objects=[])
+
+
+# ------------------------------------------------------------------------------ ray casting
+
+@settings(max_examples=25, deadline=None)
+@given(h=st.floats(0.3, 20.0), fov=st.floats(20.0, 120.0))
+def test_nadir_camera_over_flat_seabed_sees_h_over_cos(h, fov):
+    camera = sensor_mod.Pinhole.from_fov(9, 7, fov)  # odd size: a pixel centre on the axis
+    c2w = scene_mod.look_at((0.3, -0.2, h), (0.3, -0.2, 0.0))
+    origin, dirs = sensor_mod.pixel_rays(camera, c2w, supersample=1)
+    _, depth = scene_mod.render_view(_flat_scene(), origin, dirs)
+    assert depth[3, 4] == pytest.approx(h, rel=1e-6)
+    u, v = np.meshgrid(np.arange(9) + 0.5, np.arange(7) + 0.5)
+    tan2 = ((u - camera.cx) / camera.fx) ** 2 + ((v - camera.cy) / camera.fy) ** 2
+    cos_angle = 1.0 / np.sqrt(1.0 + tan2)
+    np.testing.assert_allclose(depth, h / cos_angle, rtol=1e-6)
+
+
+def test_supersampled_range_is_mean_of_subsample_ranges():
+    h = 2.0
+    camera = sensor_mod.Pinhole.from_fov(8, 6, 70.0)
+    c2w = scene_mod.look_at((0.0, 0.0, h), (0.0, 0.0, 0.0))
+    origin, dirs = sensor_mod.pixel_rays(camera, c2w, supersample=3)
+    _, depth = scene_mod.render_view(_flat_scene(), origin, dirs)
+    expected = (h / -dirs[..., 2]).mean(axis=2)
+    np.testing.assert_allclose(depth, expected, rtol=1e-6)
+    assert depth.min() > h  # no subsample lies exactly on the axis with an even grid
+
+
+def test_sphere_and_box_ranges_are_exact():
+    sphere = scene_mod.Ellipsoid("s", (0.0, 0.0, 1.0), (0.5, 0.5, 0.5))
+    box = scene_mod.Box("b", (3.0, 0.0, 1.0), (0.4, 0.3, 0.2), yaw=0.0)
+    scene = scene_mod.build_scene({}, seabed=scene_mod.Seabed(amplitude=0.0), objects=[sphere,
+                                                                                        box])
+    eye = np.array([0.0, 0.0, 4.0])
+    dirs = np.array([[0.0, 0.0, -1.0], [3.0, 0.0, -2.8], [1.0, 0.0, -0.2]])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    t, index = scene_mod.cast_rays(scene, eye, dirs)
+    assert t[0] == pytest.approx(4.0 - 1.5) and index[0] == 0
+    # Towards the box top (z = 1.2) at x = 3: the ray reaches z = 1.2 after 2.8 m of drop.
+    assert t[1] == pytest.approx(math.hypot(3.0, 2.8)) and index[1] == 1
+    # A shallow ray over everything hits the seabed plane z = 0 at range 4 / dz.
+    assert index[2] == scene_mod.SEABED and t[2] == pytest.approx(4.0 / 0.2 * math.hypot(1, 0.2))
+
+
+def test_undulating_seabed_hit_is_on_surface_and_first():
+    seabed = scene_mod.Seabed(amplitude=0.15)
+    rng = np.random.default_rng(0)
+    n = 400
+    origins = np.column_stack([rng.uniform(-3, 3, n), rng.uniform(-3, 3, n),
+                               rng.uniform(0.5, 3.0, n)])
+    dirs = np.column_stack([rng.normal(size=n), rng.normal(size=n), -rng.uniform(0.15, 1.0, n)])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    t = seabed.intersect(origins, dirs)
+    assert np.all(np.isfinite(t))
+    hit = origins + t[:, None] * dirs
+    np.testing.assert_allclose(hit[:, 2], seabed.height(hit[:, 0], hit[:, 1]), atol=1e-9)
+    fractions = np.linspace(0.0, 0.999, 400)
+    before = origins[:, None, :] + (t[:, None] * fractions)[..., None] * dirs[:, None, :]
+    assert np.all(before[..., 2] > seabed.height(before[..., 0], before[..., 1]) - 1e-9)
+
+
+def test_open_water_gives_nan_range_and_c_med():
+    camera = sensor_mod.Pinhole.from_fov(8, 6, 40.0)
+    c2w = scene_mod.look_at((0.0, 0.0, 1.0), (5.0, 0.0, 3.0))  # looking up: no surface
+    origin, dirs = sensor_mod.pixel_rays(camera, c2w, supersample=2)
+    clean, depth = scene_mod.render_view(_flat_scene(), origin, dirs)
+    assert np.all(np.isnan(depth)) and np.all(np.isnan(clean))
+    params = PRESETS["default"]
+    np.testing.assert_array_equal(water_image(clean, depth, params),
+                                  np.broadcast_to(np.float32(params.c_med), clean.shape))
+
+
+@pytest.mark.parametrize("path", ["orbit", "transect"])
+def test_paths_are_rotations_looking_at_the_scene(path):
+    scene = scene_mod.build_scene({}, seed=1)
+    rng = np.random.default_rng(2)
+    poses = (scene_mod.orbit_path(scene, 8, rng) if path == "orbit"
+             else scene_mod.transect_path(scene, 8, rng))
+    camera = sensor_mod.Pinhole.from_fov(32, 24, 65.0)
+    for c2w in poses:
+        rotation = c2w[:3, :3]
+        np.testing.assert_allclose(rotation.T @ rotation, np.eye(3), atol=1e-12)
+        assert np.linalg.det(rotation) == pytest.approx(1.0)
+        np.testing.assert_array_equal(c2w[3], [0, 0, 0, 1])
+        assert c2w[2, 3] > 1.0  # above the seabed
+        assert c2w[2, 2] < -0.3  # optical axis (z) points down into the scene
+        origin, dirs = sensor_mod.pixel_rays(camera, c2w, supersample=1)
+        _, depth = scene_mod.render_view(scene, origin, dirs)
+        assert np.isfinite(depth).mean() > 0.99
+        assert np.nanmedian(depth) < 8.0
+    if path == "orbit":  # the orbit target is near the image centre in every view
+        for c2w in poses:
+            local = c2w[:3, :3].T @ (np.asarray(scene.target) - c2w[:3, 3])
+            u = camera.fx * local[0] / local[2] + camera.cx
+            v = camera.fy * local[1] / local[2] + camera.cy
+            assert local[2] > 0 and abs(u - camera.cx) < 0.15 * camera.width \
+                and abs(v - camera.cy) < 0.15 * camera.height
+
+
+# ------------------------------------------------------------------------------ water model
+
+@settings(max_examples=50, deadline=None)
+@given(j=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3),
+       z=st.floats(0.0, 50.0),
+       attn=st.lists(st.floats(0.0, 3.0), min_size=3, max_size=3),
+       bs=st.lists(st.floats(0.0, 3.0), min_size=3, max_size=3),
+       med=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3))
+def test_water_image_matches_float64_reference(j, z, attn, bs, med):
+    params = WaterParams(tuple(attn), tuple(bs), tuple(med))
+    clean = np.array(j, np.float32).reshape(1, 1, 3)
+    got = water_image(clean, np.array([[z]], np.float32), params)[0, 0]
+    zz = float(np.float32(z))
+    jj = clean[0, 0].astype(np.float64)
+    expected = [jj[c] * math.exp(-attn[c] * zz) + med[c] * (1.0 - math.exp(-bs[c] * zz))
+                for c in range(3)]
+    np.testing.assert_allclose(got, expected, rtol=1e-6, atol=1e-7)
+
+
+def test_clear_water_image_equals_clean_image_exactly():
+    scene = scene_mod.build_scene({}, seed=4)
+    camera = sensor_mod.Pinhole.from_fov(40, 30, 65.0)
+    c2w = scene_mod.orbit_path(scene, 3, np.random.default_rng(0))[1]
+    origin, dirs = sensor_mod.pixel_rays(camera, c2w, supersample=2)
+    clean, depth = scene_mod.render_view(scene, origin, dirs)
+    assert np.isfinite(depth).all()
+    water = water_image(clean, depth, water_params("clear"))
+    np.testing.assert_array_equal(water, clean)
+    assert not np.array_equal(water_image(clean, depth, water_params("default")), clean)
+
+
+def test_water_params_scale_and_override():
+    scaled = water_params("default", scale=2.0)
+    np.testing.assert_allclose(scaled.sigma_attn, 2.0 * np.array(PRESETS["default"].sigma_attn))
+    custom = water_params("default", sigma_bs=[0.1, 0.2, 0.3])
+    assert custom.sigma_bs == (0.1, 0.2, 0.3) and custom.preset == "default+custom"
+    turbid = PRESETS["turbid"]
+    assert math.exp(-turbid.sigma_attn[1] * 3.5) == pytest.approx(0.1, abs=0.01)
+
+
+# ------------------------------------------------------------------------------ sensor
+
+def test_raw_noise_follows_poisson_gaussian_model():
+    config = sensor_mod.SensorConfig()
+    rng = np.random.default_rng(5)
+    for level in (0.0, 300.0, 4000.0):
+        raw = sensor_mod.capture_raw(np.full((200, 200), level), config.iso, config, rng)
+        value = raw.astype(np.float64) - config.black_level
+        sigma = float(sensor_mod.noise_sigma_dn(np.array(level), config.iso, config))
+        assert value.mean() == pytest.approx(level, abs=4 * sigma / 200 + 0.5)
+        assert value.std() == pytest.approx(sigma, rel=0.05)
+    saturated = sensor_mod.capture_raw(np.full((4, 4), 1e6), config.iso, config, rng)
+    assert np.all(saturated == config.white_level)
+
+
+# ------------------------------------------------------------------------------ written files
+
+def test_cli_writes_every_documented_file(dive):
+    for name in NAMES:
+        for rel in (f"raw/{name}.dng", f"jpeg/{name}.jpg", f"truth/clean/{name}.tiff",
+                    f"truth/water/{name}.tiff", f"truth/depth/{name}.tiff"):
+            assert (dive / rel).is_file(), rel
+    for rel in ("truth/cameras.json", "truth/water.json", "truth/sensor.json",
+                "truth/scene.json", "README.md"):
+        assert (dive / rel).is_file(), rel
+    readme = (dive / "README.md").read_text()
+    for rel in ("raw/<name>.dng", "jpeg/<name>.jpg", "truth/clean", "truth/water",
+                "truth/depth", "cameras.json", "water.json", "sensor.json", "scene.json"):
+        assert rel in readme
+    assert not [p for p in dive.parent.iterdir() if p.name.startswith(".")]  # no temporaries
+
+    cameras = read_cameras(dive / "truth" / "cameras.json")
+    assert cameras.source == "simulated" and cameras.scale == 1.0 and cameras.centre == [0, 0, 0]
+    assert [f.name for f in cameras.frames] == NAMES
+    assert [f.split for f in cameras.frames] == ["test", "train", "train", "train"]
+    for frame in cameras.frames:
+        image = tifffile.imread(cameras.image_path(frame))
+        depth = tifffile.imread(dive / "truth" / "depth" / f"{frame.name}.tiff")
+        assert image.shape == (HEIGHT, WIDTH, 3) and image.dtype == np.float32
+        assert depth.shape == (HEIGHT, WIDTH)
+        assert frame.near <= np.nanmin(depth) and np.nanmax(depth) <= frame.far
+        assert cameras.near <= frame.near and frame.far <= cameras.far
+        assert (frame.width, frame.height) == (WIDTH, HEIGHT)
+    water = json.loads((dive / "truth" / "water.json").read_text())
+    assert water["preset"] == "default" and "1/m" in water["units"]
+
+
+def test_water_truth_follows_the_formula_not_a_swapped_one(dive):
+    water = json.loads((dive / "truth" / "water.json").read_text())
+    attn, bs, med = (np.array(water[k]) for k in ("sigma_attn", "sigma_bs", "c_med"))
+    rng = np.random.default_rng(0)
+    for name in NAMES:
+        clean = tifffile.imread(dive / "truth" / "clean" / f"{name}.tiff").astype(np.float64)
+        depth = tifffile.imread(dive / "truth" / "depth" / f"{name}.tiff").astype(np.float64)
+        image = tifffile.imread(dive / "truth" / "water" / f"{name}.tiff").astype(np.float64)
+        rows, cols = rng.integers(0, HEIGHT, 200), rng.integers(0, WIDTH, 200)
+        j, z, got = clean[rows, cols], depth[rows, cols, None], image[rows, cols]
+        assert np.isfinite(z).all()
+        model = j * np.exp(-attn * z) + med * (1.0 - np.exp(-bs * z))
+        np.testing.assert_allclose(got, model, rtol=1e-6, atol=1e-7)
+        swapped = j * np.exp(-bs * z) + med * (1.0 - np.exp(-attn * z))
+        assert np.abs(got - swapped).max() > 1e-2
+
+
+def test_dng_round_trip_through_rawpy(dive):
+    sensor = json.loads((dive / "truth" / "sensor.json").read_text())
+    black, white = sensor["black_level"], sensor["white_level"]
+    span = white - black
+    for name in NAMES[:2]:
+        path = dive / "raw" / f"{name}.dng"
+        shot = sensor["images"][name]
+        meta = read_dng_metadata(path)
+        assert (meta["black_level"], meta["white_level"], meta["cfa_pattern"]) == (
+            black, white, "RGGB")
+        assert meta["exposure_time_s"] == shot["exposure_time_s"]
+        assert (meta["iso"], meta["f_number"]) == (shot["iso"], shot["f_number"])
+        with open(path, "rb") as fh:
+            exif = exifread.process_file(fh, details=False)
+        exposure = exif["Image ExposureTime"].values[0]
+        assert float(exposure.num) / float(exposure.den) == pytest.approx(shot["exposure_time_s"])
+        assert int(str(exif["Image ISOSpeedRatings"])) == shot["iso"]
+
+        with rawpy.imread(str(path)) as raw:
+            mosaic = raw.raw_image_visible.astype(np.float64)
+            assert list(raw.black_level_per_channel) == [black] * 4
+            assert raw.white_level == white
+            assert raw.color_desc.decode() == "RGBG"
+            assert raw.raw_pattern.tolist() == [[0, 1], [3, 2]]
+        decoded = decode_linear(path).astype(np.float64)
+        assert decoded.shape == (HEIGHT, WIDTH, 3)
+        channel = sensor_mod.cfa_channel(HEIGHT, WIDTH)
+        native = np.take_along_axis(decoded, channel[..., None], axis=2)[..., 0]
+        # At each photosite the decoder keeps the sample: (raw - black) / (white - black).
+        np.testing.assert_allclose(native, np.clip((mosaic - black) / span, 0, 1), atol=2e-5)
+
+        water = tifffile.imread(dive / "truth" / "water" / f"{name}.tiff").astype(np.float64)
+        scale = shot["exposure_time_s"] * shot["iso"] / 100.0 * sensor["dn_per_unit"]
+        expected = np.clip(water * scale / span, 0.0, 1.0)
+        expected_native = np.take_along_axis(expected, channel[..., None], axis=2)[..., 0]
+        gain = sensor["gain_iso100"] * shot["iso"] / 100.0
+        sigma = np.sqrt(gain * expected_native * span + sensor["read_noise_dn"] ** 2) / span
+        assert np.all(np.abs(native - expected_native) <= 5.5 * sigma + 1e-4)
+        # Interpolated channels: only demosaicing (and noise) error, no bias.
+        error = decoded - expected
+        assert abs(error.mean()) < 2e-3
+        assert np.median(np.abs(error)) < 0.02
+
+
+def test_rerun_replaces_output_and_refuses_foreign_folder(dive, tmp_path):
+    foreign = tmp_path / "photos"
+    foreign.mkdir()
+    (foreign / "keep.txt").write_text("mine")
+    assert cli_main(["simulate", "--out", str(foreign), "--views", "1", "--width", "16",
+                     "--height", "12"]) == 2
+    assert (foreign / "keep.txt").read_text() == "mine"
+    assert cli_main(["simulate", "--out", str(tmp_path / "x"), "--width", "15"]) == 2
+
+
+def test_output_is_deterministic_and_independent_of_workers(tmp_path):
+    base = dict(views=3, width=24, height=16, seed=11, supersample=1)
+    simulate(tmp_path / "one", SimulationOptions(**base, workers=1))
+    simulate(tmp_path / "two", SimulationOptions(**base, workers=2))
+    for rel in ("raw/dive_0002.dng", "truth/water/dive_0001.tiff", "jpeg/dive_0000.jpg",
+                "truth/cameras.json", "truth/sensor.json"):
+        assert (tmp_path / "one" / rel).read_bytes() == (tmp_path / "two" / rel).read_bytes()
+    other = tmp_path / "other"
+    simulate(other, SimulationOptions(**{**base, "seed": 12}))
+    assert (other / "raw/dive_0002.dng").read_bytes() != (tmp_path / "one" /
+                                                          "raw/dive_0002.dng").read_bytes()
