@@ -1,0 +1,394 @@
+"""The SeaThru-NeRF model: object field + water medium + sampler + medium-aware renderer.
+
+``SeaThruModel(config, scene)`` renders rays (``forward``); ``from_checkpoint`` rebuilds it from
+``model.pt`` or a training checkpoint (the dict ``torch.load(path, weights_only=True)`` returns);
+``water_parameters`` gives the fitted water in normalised units.
+
+``scene`` is a plain dict (it goes into ``model.pt``)::
+
+    {"box_min": [3], "box_max": [3],        # scene box, normalised units (rays.covisible_box)
+     "near": float, "far": float,           # camera file bounds
+     "typical_range": float,                # a representative camera-to-scene distance
+     "normalisation": {"centre": [3], "scale": float}}
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from dataclasses import field as dc_field
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+from torch.profiler import record_function
+
+from seathru.core.fields import GridField, MLPField, SceneBox
+from seathru.core.medium import MEDIUM_MODES, Medium
+from seathru.core.rays import ray_box_intersect
+from seathru.core.rendering import RayRender, render_seathru
+from seathru.core.sampler import (candidate_edges, lookup_nearest, merge_edges,
+                                  normalised_distance, occupancy_weights, sample_pdf,
+                                  stratified_edges)
+
+MODEL_FORMAT = "seathru-model/1"
+
+
+@dataclass
+class ModelConfig:
+    """Every setting of the model and its training (defaults: the fast CPU model)."""
+
+    # object field
+    field: str = "grid"                     # "grid" (fast) | "mlp" (paper baseline)
+    density_res: list = dc_field(default_factory=lambda: [96, 128, 160])  # per stage, longest axis
+    plane_res: list = dc_field(default_factory=lambda: [128, 256, 384])    # per stage, fine level
+    plane_coarse_res: int = 48
+    density_coarse_res: int = 32
+    stage_starts: list = dc_field(default_factory=lambda: [0.08, 0.25])    # progress of stages 1, 2
+    plane_channels: int = 8
+    decoder_hidden: int = 32
+    view_dependent_colour: bool = False
+    colour_max: float = 1.5
+    init_opacity: float = 0.05              # initial object opacity across the scene box
+    mlp_width: int = 256
+    mlp_depth: int = 8
+    # sampling
+    sampler: str = "occupancy"              # "occupancy" | "hierarchical" (paper baseline)
+    candidates_linear: int = 64
+    candidates_disparity: int = 16
+    samples_per_ray: int = 16
+    uniform_mix: float = 0.1                # final share of uniformly placed samples
+    uniform_mix_start: float = 1.0          # ... at the start (the density grid knows nothing)
+    uniform_mix_until: float = 0.3          # progress by which it has fallen to uniform_mix
+    occupancy_dilate: int = 1
+    occupancy_lookup: str = "exact"         # "exact" (trilinear, current) | "grid" (cached)
+    occupancy_refresh_every: int = 8
+    colour_weight_threshold: float = 1e-4
+    coarse_samples: int = 128
+    fine_samples: int = 32
+    # water
+    medium: str = "auto"                    # "auto" | "off" | "global" | "view"
+    medium_sigma_init: float = 0.0          # 0: 0.5 / typical range
+    render_method: str = "exact"            # "exact" | "paper"
+    water_before: bool = True
+    water_after: bool = True
+    auto_select_at: float = 0.2             # progress at which --medium auto decides
+    auto_backscatter_share: float = 0.01    # below: backscatter negligible
+    auto_attenuation: float = 0.02          # below: attenuation over the scene depth negligible
+    # training
+    steps: int = 6000
+    batch_rays: int = 1024
+    lr: float = 0.05
+    density_lr_scale: float = 4.0
+    network_lr_scale: float = 0.1
+    medium_lr_scale: float = 1.0
+    warmup_steps: int = 30
+    lr_final_ratio: float = 0.05
+    transmittance_prior_weight: float = 1e-4
+    transmittance_prior_start: float = 0.0  # progress at which the prior starts (ramped in 0.1)
+    distortion_weight: float = 0.01
+    density_tv_weight: float = 0.0
+    min_views: int = 2                      # density is only learnt where this many views look
+    recon_eps: float = 1e-3
+    seed: int = 0
+    max_minutes: float = 3.0
+    eval_rays: int = 4096
+    nan_max_retries: int = 5
+    snapshot_every: int = 50
+    log_every: int = 50
+    checkpoint_every: int = 500
+
+    # Fields that do not change the model being trained (a resumed run may change them).
+    RUNTIME_FIELDS = ("max_minutes", "log_every", "checkpoint_every", "eval_rays",
+                      "snapshot_every", "nan_max_retries")
+
+    def to_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "ModelConfig":
+        known = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in data.items() if k in known})
+
+    def identity(self) -> dict:
+        """The settings that must match for a checkpoint to be resumed."""
+        return {k: v for k, v in self.to_dict().items() if k not in self.RUNTIME_FIELDS}
+
+    def validate(self) -> None:
+        if self.field not in ("grid", "mlp"):
+            raise ValueError(f"field must be 'grid' or 'mlp', got {self.field!r}")
+        if self.sampler not in ("occupancy", "hierarchical"):
+            raise ValueError(f"sampler must be 'occupancy' or 'hierarchical', got {self.sampler!r}")
+        if self.field == "mlp" and self.sampler == "occupancy":
+            raise ValueError("the MLP field has no density grid: use sampler='hierarchical'")
+        if self.medium not in ("auto", *MEDIUM_MODES):
+            raise ValueError(f"medium must be auto, off, global or view, got {self.medium!r}")
+        if len(self.density_res) != len(self.plane_res) or \
+                len(self.stage_starts) != len(self.density_res) - 1:
+            raise ValueError("density_res and plane_res need one entry per stage and "
+                             "stage_starts one per stage after the first")
+        for name in ("steps", "batch_rays", "samples_per_ray"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.lr <= 0:
+            raise ValueError(f"lr must be > 0, got {self.lr}")
+
+
+@dataclass
+class ModelOutput:
+    render: RayRender               # the final rendering
+    t_edges: Tensor                 # (R, S+1)
+    s_edges: Tensor | None = None   # (R, S+1) normalised ray coordinate of the edges
+    coarse: RayRender | None = None  # hierarchical sampler: the coarse pass
+
+
+def initial_medium_mode(config: ModelConfig) -> str:
+    return "global" if config.medium == "auto" else config.medium
+
+
+def _replace_parameter(root: nn.Module, name: str, value: Tensor) -> nn.Parameter:
+    *path, attr = name.split(".")
+    parent = root
+    for part in path:
+        parent = parent[int(part)] if part.isdigit() else getattr(parent, part)
+    new = nn.Parameter(value.detach().clone().contiguous(), requires_grad=True)
+    if attr.isdigit():
+        parent[int(attr)] = new
+    else:
+        setattr(parent, attr, new)
+    return new
+
+
+class SeaThruModel(nn.Module):
+    def __init__(self, config: ModelConfig, scene: dict):
+        super().__init__()
+        config.validate()
+        self.config = config
+        self.scene = {k: v for k, v in scene.items()}
+        self.box = SceneBox(scene["box_min"], scene["box_max"])
+        extent = (self.box.box_max - self.box.box_min).tolist()
+        typical = float(scene.get("typical_range") or max(extent))
+        if config.field == "grid":
+            diagonal = math.sqrt(sum(e * e for e in extent))
+            init_density = -math.log(1.0 - config.init_opacity) / diagonal
+            self.field = GridField(extent, config.density_res[0], config.plane_res[0],
+                                   config.plane_coarse_res, config.plane_channels,
+                                   config.decoder_hidden, config.view_dependent_colour,
+                                   config.colour_max, init_density, config.density_coarse_res)
+        else:
+            self.field = MLPField(config.mlp_width, config.mlp_depth, colour_max=config.colour_max,
+                                  view_dependent=config.view_dependent_colour)
+        sigma_init = config.medium_sigma_init or 0.5 / typical
+        c_med = scene.get("c_med_init", [0.1, 0.2, 0.3])
+        if config.field == "grid":
+            self.field.decoder.init_colour(c_med)
+        self.medium = Medium(initial_medium_mode(config), sigma_init, c_med, config.colour_max)
+        self.register_buffer("stage", torch.tensor(0))
+        self._occupancy: Tensor | None = None
+        self.uniform_mix = config.uniform_mix  # the trainer anneals it
+
+    def set_progress(self, progress: float) -> None:
+        """Training progress in [0, 1]: anneals the share of uniformly placed samples."""
+        c = self.config
+        fade = min(1.0, progress / c.uniform_mix_until) if c.uniform_mix_until > 0 else 1.0
+        self.uniform_mix = c.uniform_mix_start + (c.uniform_mix - c.uniform_mix_start) * fade
+
+    # ------------------------------------------------------------------ construction / io
+    @classmethod
+    def from_checkpoint(cls, ckpt: dict, device="cpu") -> "SeaThruModel":
+        """Rebuild from ``model.pt`` ({"format", "config", "state_dict", "scene"}) or from a
+        training checkpoint ({"config", "model", "scene", ...})."""
+        if "state_dict" in ckpt:
+            state = ckpt["state_dict"]
+        elif "model" in ckpt:
+            state = ckpt["model"]
+        else:
+            raise ValueError("checkpoint has neither 'state_dict' nor 'model'")
+        model = cls(ModelConfig.from_dict(ckpt["config"]), ckpt["scene"])
+        model.load_state_dict_resizing(state)
+        model.to(device)
+        model.eval()
+        return model
+
+    def export(self) -> dict:
+        """The ``model.pt`` dict (loadable with ``torch.load(weights_only=True)``)."""
+        return {"format": MODEL_FORMAT, "config": self.config.to_dict(),
+                "state_dict": {k: v.detach().cpu() for k, v in self.state_dict().items()},
+                "scene": self.scene}
+
+    def load_state_dict_resizing(self, state: dict) -> None:
+        """load_state_dict after giving grid parameters the shapes found in ``state``."""
+        own = dict(self.named_parameters())
+        for name, value in state.items():
+            if name in own and tuple(own[name].shape) != tuple(value.shape):
+                _replace_parameter(self, name, torch.empty(value.shape, dtype=own[name].dtype,
+                                                           device=own[name].device))
+        self.load_state_dict(state)
+        self._occupancy = None
+
+    # ------------------------------------------------------------------ coarse to fine
+    def stage_for_progress(self, progress: float) -> int:
+        return sum(1 for start in self.config.stage_starts if progress >= start)
+
+    def set_stage(self, stage: int) -> dict[str, tuple[nn.Parameter, nn.Parameter]]:
+        """Resample the grids to ``stage``'s resolution; returns {name: (old, new) parameter}."""
+        if self.config.field != "grid" or stage == int(self.stage):
+            return {}
+        values = self.field.resize(self.config.density_res[stage], self.config.plane_res[stage])
+        own = dict(self.named_parameters())
+        swapped = {}
+        for short, value in values.items():
+            name = f"field.{short}"
+            swapped[name] = (own[name], _replace_parameter(self, name, value))
+        self.stage.fill_(stage)
+        self._occupancy = None
+        return swapped
+
+    # ------------------------------------------------------------------ rendering
+    def refresh_occupancy(self) -> None:
+        if self.config.field == "grid":
+            self._occupancy = self.field.occupancy_density(self.config.occupancy_dilate)
+
+    def _split_distance(self, origins: Tensor, dirs: Tensor, near: Tensor) -> Tensor:
+        t_in, t_out = ray_box_intersect(origins, dirs, self.box.box_min, self.box.box_max)
+        return torch.where(t_out >= torch.maximum(t_in, near), t_out, near)
+
+    def forward(self, origins: Tensor, dirs: Tensor, near: Tensor, far: Tensor,
+                generator: torch.Generator | None = None) -> ModelOutput:
+        """Render rays: origins, dirs (R, 3) (unit), near, far (R,). ``generator``: jitter the
+        samples (training); None: deterministic."""
+        sigma_attn, sigma_bs, c_med = self.medium(dirs)
+        t_split = self._split_distance(origins, dirs, near)
+        if self.config.sampler == "occupancy":
+            return self._forward_occupancy(origins, dirs, near, far, t_split, generator,
+                                           (sigma_attn, sigma_bs, c_med))
+        return self._forward_hierarchical(origins, dirs, near, far, t_split, generator,
+                                          (sigma_attn, sigma_bs, c_med))
+
+    def _jitter(self, rays: int, count: int, generator, device) -> Tensor | None:
+        if generator is None or count <= 0:
+            return None
+        return torch.rand(rays, count, generator=generator).to(device)
+
+    def _render(self, sigma, rgb, t_edges, water) -> RayRender:
+        c = self.config
+        return render_seathru(sigma, rgb, t_edges, *water, method=c.render_method,
+                              water_before=c.water_before, water_after=c.water_after)
+
+    def _forward_occupancy(self, origins, dirs, near, far, t_split, generator, water):
+        c = self.config
+        rays, samples = origins.shape[0], c.samples_per_ray
+        with torch.no_grad(), record_function("seathru.sample"):
+            candidates = candidate_edges(near, far, t_split, c.candidates_linear,
+                                         c.candidates_disparity)
+            mids = 0.5 * (candidates[:, 1:] + candidates[:, :-1])
+            g = self.box.to_grid(origins[:, None, :] + dirs[:, None, :] * mids[..., None])
+            if c.occupancy_lookup == "exact":
+                density = self.field.density_at(g.reshape(-1, 3)).reshape(mids.shape)
+            else:
+                if self._occupancy is None or self._occupancy.device != origins.device:
+                    self.refresh_occupancy()
+                density = lookup_nearest(self._occupancy, g)
+            weights = occupancy_weights(candidates, density)
+            jitter = self._jitter(rays, samples - 1, generator, origins.device)
+            mix = self.uniform_mix if self.training else c.uniform_mix
+            t_edges = sample_pdf(candidates, weights, samples, mix, jitter)
+            deltas = t_edges[:, 1:] - t_edges[:, :-1]
+            mids = t_edges[:, :-1] + 0.5 * deltas
+            g = self.box.to_grid((origins[:, None, :] + dirs[:, None, :] * mids[..., None])
+                                 .reshape(-1, 3))
+        with record_function("seathru.density"):
+            sigma = self.field.density_at(g).reshape(rays, samples)
+        with torch.no_grad():
+            w = occupancy_weights(t_edges, sigma.detach())
+            keep = (w.reshape(-1) > c.colour_weight_threshold).nonzero().squeeze(-1)
+        with record_function("seathru.colour"):
+            view = None
+            if c.view_dependent_colour:
+                view = dirs[:, None, :].expand(rays, samples, 3).reshape(-1, 3)[keep]
+            colours = self.field.colour_at(g[keep], view)
+            rgb = colours.new_zeros(rays * samples, 3).index_copy(0, keep, colours)
+        with record_function("seathru.render"):
+            render = self._render(sigma, rgb.reshape(rays, samples, 3), t_edges, water)
+        share = c.candidates_linear / (c.candidates_linear + c.candidates_disparity)
+        s_edges = normalised_distance(t_edges, near, far, t_split, share) \
+            if self.training else None
+        return ModelOutput(render=render, t_edges=t_edges, s_edges=s_edges)
+
+    def _field_all(self, t_edges, origins, dirs):
+        rays, samples = t_edges.shape[0], t_edges.shape[1] - 1
+        mids = 0.5 * (t_edges[:, 1:] + t_edges[:, :-1])
+        points = origins[:, None, :] + dirs[:, None, :] * mids[..., None]
+        g = self.box.to_grid(points.reshape(-1, 3))
+        view = dirs[:, None, :].expand(rays, samples, 3).reshape(-1, 3)
+        sigma, rgb = self.field.density_and_colour(g, view)
+        return sigma.reshape(rays, samples), rgb.reshape(rays, samples, 3)
+
+    def _forward_hierarchical(self, origins, dirs, near, far, t_split, generator, water):
+        c = self.config
+        rays = origins.shape[0]
+        n_disp = max(1, c.coarse_samples // 4)
+        with torch.no_grad():
+            coarse_edges = candidate_edges(near, far, t_split, c.coarse_samples - n_disp, n_disp)
+            coarse_edges = stratified_edges(coarse_edges, self._jitter(
+                rays, c.coarse_samples - 1, generator, origins.device))
+        sigma, rgb = self._field_all(coarse_edges, origins, dirs)
+        coarse = self._render(sigma, rgb, coarse_edges, water)
+        with torch.no_grad():
+            fine = sample_pdf(coarse_edges, coarse.weights.detach(), c.fine_samples, 0.0,
+                              self._jitter(rays, c.fine_samples - 1, generator, origins.device))
+            t_edges = merge_edges(coarse_edges, fine)
+        sigma, rgb = self._field_all(t_edges, origins, dirs)
+        return ModelOutput(render=self._render(sigma, rgb, t_edges, water), t_edges=t_edges,
+                           coarse=coarse)
+
+    # ------------------------------------------------------------------ water
+    @torch.no_grad()
+    def water_parameters(self, directions: Tensor | None = None) -> dict[str, Any]:
+        """Fitted water in normalised units: {"mode", "sigma_attn", "sigma_bs", "c_med"} (lists
+        of 3). View-dependent mode: the mean over ``directions`` (R, 3) (or over a fixed sphere
+        of directions if None), with "min" and "max" dicts."""
+        mode = self.medium.mode
+        if directions is None:
+            directions = _fibonacci_sphere(512, self.medium.raw_attn.device)
+        if mode != "view":
+            directions = directions[:1]
+        directions = directions.to(self.medium.raw_attn.device)
+        attn, bs, colour = self.medium(directions)
+        values = {"sigma_attn": attn, "sigma_bs": bs, "c_med": colour}
+        result: dict[str, Any] = {"mode": mode}
+        result.update({k: [float(x) for x in v.mean(0)] for k, v in values.items()})
+        if mode == "view":
+            result["min"] = {k: [float(x) for x in v.amin(0)] for k, v in values.items()}
+            result["max"] = {k: [float(x) for x in v.amax(0)] for k, v in values.items()}
+        return result
+
+
+def _fibonacci_sphere(count: int, device) -> Tensor:
+    i = torch.arange(count, dtype=torch.float32, device=device) + 0.5
+    z = 1.0 - 2.0 * i / count
+    r = torch.sqrt(1.0 - z * z)
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * i
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=-1)
+
+
+def build_scene(frames, near: float, far: float, centre, scale: float, mean_rgb=None,
+                min_fraction: float = 0.5) -> dict:
+    """The ``scene`` dict of a model from the training frames of a camera file.
+
+    The box is where most cameras look (``rays.covisible_box``); ``typical_range`` (twice the
+    median frame near bound) sets the initial water coefficients; ``mean_rgb`` (the training
+    images' mean colour) the initial veiling light.
+    """
+    import numpy as np
+
+    from seathru.core.rays import covisible_box
+
+    box_min, box_max = covisible_box(frames, min_fraction=min_fraction)
+    typical = 2.0 * float(np.median([f.near for f in frames]))
+    scene = {"box_min": [float(v) for v in box_min], "box_max": [float(v) for v in box_max],
+             "near": float(near), "far": float(far), "typical_range": typical,
+             "normalisation": {"centre": [float(v) for v in centre], "scale": float(scale)}}
+    if mean_rgb is not None:
+        scene["c_med_init"] = [float(v) for v in mean_rgb]
+    return scene

@@ -1,0 +1,205 @@
+"""Camera rays and training ray batches.
+
+Conventions (``seathru.io.cameras``): OpenCV camera axes (x right, y down, z forward), ``c2w``
+maps camera to normalised world, the centre of pixel (u, v) is at (u + 0.5, v + 0.5). Ray
+directions are unit vectors, so the distance ``t`` along a ray is the Euclidean range from the
+camera centre (the SeaThru model's ``z``).
+
+Downscaled rays: with ``downscale = s`` the image has ``H // s`` rows and ``W // s`` columns and
+pixel (j, i) is the centre of the s x s block of full-resolution pixels it covers, at full
+resolution coordinates ((j + 0.5) s, (i + 0.5) s).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+
+def downscaled_size(width: int, height: int, downscale: int = 1) -> tuple[int, int]:
+    """(width, height) of an image rendered at ``downscale``."""
+    if downscale < 1:
+        raise ValueError(f"downscale must be >= 1, got {downscale}")
+    return max(1, width // downscale), max(1, height // downscale)
+
+
+def camera_rays_np(c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float, width: int,
+                   height: int, downscale: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Rays of every pixel, row-major, float64: origins (H*W, 3), unit directions (H*W, 3)."""
+    out_w, out_h = downscaled_size(width, height, downscale)
+    u = (np.arange(out_w, dtype=np.float64) + 0.5) * downscale
+    v = (np.arange(out_h, dtype=np.float64) + 0.5) * downscale
+    uu, vv = np.meshgrid(u, v)  # (H, W), row-major like the image
+    cam = np.stack([(uu - cx) / fx, (vv - cy) / fy, np.ones_like(uu)], axis=-1).reshape(-1, 3)
+    c2w = np.asarray(c2w, dtype=np.float64)
+    dirs = cam @ c2w[:3, :3].T
+    dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    origins = np.broadcast_to(c2w[:3, 3], dirs.shape).copy()
+    return origins, dirs
+
+
+def frame_rays(frame, downscale: int = 1) -> tuple[Tensor, Tensor]:
+    """Rays of a ``seathru.io.cameras.Frame``: origins (H*W, 3), unit directions (H*W, 3), float32.
+
+    Row-major pixel order (reshape to (H // downscale, W // downscale, 3)).
+    """
+    origins, dirs = camera_rays_np(frame.c2w_array, frame.fx, frame.fy, frame.cx, frame.cy,
+                                   frame.width, frame.height, downscale)
+    return (torch.from_numpy(origins.astype(np.float32)),
+            torch.from_numpy(dirs.astype(np.float32)))
+
+
+def ray_box_intersect(origins: Tensor, dirs: Tensor, box_min: Tensor, box_max: Tensor
+                      ) -> tuple[Tensor, Tensor]:
+    """Slab test. origins, dirs (R, 3); box (3,). Returns t_in, t_out (R,); t_in > t_out: miss.
+
+    Distances may be negative (box behind or around the origin).
+    """
+    safe = torch.where(dirs.abs() < 1e-12, torch.full_like(dirs, 1e-12), dirs)
+    inv = 1.0 / safe
+    t0 = (box_min - origins) * inv
+    t1 = (box_max - origins) * inv
+    t_in = torch.minimum(t0, t1).amax(dim=-1)
+    t_out = torch.maximum(t0, t1).amin(dim=-1)
+    return t_in, t_out
+
+
+def covisible_box(frames, min_fraction: float = 0.5, grid: tuple[int, int] = (16, 12),
+                  depths: int = 32, padding: float = 0.05, depth_factor: float = 4.0
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned box (min (3,), max (3,)) of the region that many cameras see, plus the cameras.
+
+    Points on each camera's frustum (a ``grid`` of pixels, ``depths`` ranges geometric between
+    the frame's near and far) count as co-visible when at least ``min_fraction`` of the cameras
+    (and at least 2) see them within their own near/far. Ranges stop at ``depth_factor`` times
+    the near bound (surfaces the cameras look at are rarely much farther than the nearest one,
+    and beyond a few times that distance water hides them anyway). The box is where the model spends its
+    full resolution; everything outside is still represented, contracted (see
+    ``seathru.core.fields.contract``), so the box only has to cover the well-observed core.
+    """
+    frames = list(frames)
+    if not frames:
+        raise ValueError("covisible_box needs at least one frame")
+    centres = np.array([f.c2w_array[:3, 3] for f in frames])
+    points = []
+    for f in frames:
+        step_u = max(1, round(f.width / grid[0]))
+        step_v = max(1, round(f.height / grid[1]))
+        o, d = camera_rays_np(f.c2w_array, f.fx, f.fy, f.cx, f.cy, f.width, f.height, 1)
+        d = d.reshape(f.height, f.width, 3)[step_v // 2::step_v, step_u // 2::step_u].reshape(-1, 3)
+        near = max(f.near, 1e-6)
+        far = max(min(f.far, depth_factor * near), near * 1.001 + 1e-6)
+        ts = np.geomspace(near, far, depths)
+        points.append((o[0][None, None, :] + d[:, None, :] * ts[None, :, None]).reshape(-1, 3))
+    points = np.concatenate(points)
+    counts = np.zeros(len(points), dtype=np.int64)
+    for f in frames:
+        w2c = np.linalg.inv(f.c2w_array)
+        cam = points @ w2c[:3, :3].T + w2c[:3, 3]
+        z = cam[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = f.fx * cam[:, 0] / z + f.cx
+            v = f.fy * cam[:, 1] / z + f.cy
+        dist = np.linalg.norm(cam, axis=-1)
+        seen = (z > 0) & (u >= 0) & (u < f.width) & (v >= 0) & (v < f.height) \
+            & (dist >= f.near) & (dist <= f.far)
+        counts += seen
+    needed = max(2, int(np.ceil(min_fraction * len(frames)))) if len(frames) > 1 else 1
+    core = points[counts >= needed]
+    if len(core) < 16:  # too few views overlap: take the near half of every frustum instead
+        core = points[np.linalg.norm(points - centres.mean(0), axis=-1)
+                      <= np.median(np.linalg.norm(points - centres.mean(0), axis=-1))]
+    core = np.concatenate([core, centres])
+    lo, hi = core.min(axis=0), core.max(axis=0)
+    size = np.maximum(hi - lo, 1e-3 * max(float(np.max(hi - lo)), 1e-6))
+    pad = padding * size + 1e-6
+    return lo - pad, hi + pad
+
+
+def view_counts(points: np.ndarray, frames) -> np.ndarray:
+    """How many frames see each point (P, 3): in front, inside the image, within near..far."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    counts = np.zeros(len(points), dtype=np.int32)
+    for f in frames:
+        w2c = np.linalg.inv(f.c2w_array)
+        cam = points @ w2c[:3, :3].T + w2c[:3, 3]
+        z = cam[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = f.fx * cam[:, 0] / z + f.cx
+            v = f.fy * cam[:, 1] / z + f.cy
+        dist = np.linalg.norm(cam, axis=-1)
+        counts += (z > 0) & (u >= 0) & (u < f.width) & (v >= 0) & (v < f.height) \
+            & (dist >= f.near) & (dist <= f.far)
+    return counts
+
+
+@dataclass
+class RayBatch:
+    """A batch of rays with their training targets (device tensors)."""
+
+    origins: Tensor    # (R, 3)
+    directions: Tensor  # (R, 3) unit
+    near: Tensor       # (R,)
+    far: Tensor        # (R,)
+    rgb: Tensor        # (R, 3) linear target colour
+
+    def __len__(self) -> int:
+        return self.origins.shape[0]
+
+    def to(self, device) -> "RayBatch":
+        return RayBatch(*(getattr(self, k).to(device) for k in
+                          ("origins", "directions", "near", "far", "rgb")))
+
+    def subset(self, index: Tensor) -> "RayBatch":
+        return RayBatch(self.origins[index], self.directions[index], self.near[index],
+                        self.far[index], self.rgb[index])
+
+
+class RayDataset:
+    """All valid pixels of a set of frames as one tensor of rays (fits in memory at these sizes).
+
+    ``images``: one (H, W, 3) float array per frame; ``masks``: (H, W) bool or None per frame.
+    Pixels outside the mask or with a non-finite value are left out.
+    """
+
+    def __init__(self, frames, images, masks=None, device="cpu"):
+        origins, dirs, near, far, rgb = [], [], [], [], []
+        masks = masks if masks is not None else [None] * len(frames)
+        self.dropped_nonfinite = 0
+        for frame, image, mask in zip(frames, images, masks):
+            image = np.asarray(image, dtype=np.float32)
+            if image.shape[:2] != (frame.height, frame.width):
+                raise ValueError(f"frame {frame.name}: image is {image.shape[1]}x{image.shape[0]}"
+                                 f", cameras say {frame.width}x{frame.height}")
+            o, d = frame_rays(frame)
+            keep = np.isfinite(image).all(axis=-1)
+            self.dropped_nonfinite += int((~keep).sum())
+            if mask is not None:
+                keep &= np.asarray(mask, dtype=bool)
+            keep_t = torch.from_numpy(keep.reshape(-1))
+            origins.append(o[keep_t])
+            dirs.append(d[keep_t])
+            n = int(keep_t.sum())
+            near.append(torch.full((n,), float(frame.near)))
+            far.append(torch.full((n,), float(frame.far)))
+            rgb.append(torch.from_numpy(image.reshape(-1, 3))[keep_t])
+        self.rays = RayBatch(torch.cat(origins), torch.cat(dirs), torch.cat(near),
+                             torch.cat(far), torch.cat(rgb)).to(device)
+
+    def __len__(self) -> int:
+        return len(self.rays)
+
+    def sample(self, count: int, generator: torch.Generator) -> RayBatch:
+        """``count`` rays drawn uniformly with replacement (indices from ``generator``, CPU)."""
+        index = torch.randint(0, len(self), (count,), generator=generator)
+        return self.rays.subset(index.to(self.rays.origins.device))
+
+    def fixed_subset(self, count: int, seed: int) -> RayBatch:
+        """A reproducible subset of at most ``count`` rays (evaluation probes)."""
+        generator = torch.Generator().manual_seed(seed)
+        count = min(count, len(self))
+        index = torch.randperm(len(self), generator=generator)[:count]
+        return self.rays.subset(index.to(self.rays.origins.device))

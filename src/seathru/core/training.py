@@ -1,0 +1,511 @@
+"""The training loop: Adam with warm-up and decay, coarse-to-fine grids, medium model selection,
+a NaN/Inf guard, held-out evaluation, checkpoints. No file I/O: the step passes callbacks.
+
+Progress. Training stops at ``config.steps`` or after ``config.max_minutes``, whichever comes
+first, and every schedule (learning-rate decay, grid upsampling, the medium decision) follows
+``progress = max(step / steps, elapsed / budget)``, so a run cut short by its time budget still
+decays its learning rate and reaches the finest grid: the model adapts to the machine it runs on.
+
+NaN guard. A non-finite loss or gradient norm restores the last in-memory snapshot (taken every
+``snapshot_every`` good steps), halves the learning rate and carries on; after
+``nan_max_retries`` such rollbacks training stops with a ``PipelineError``.
+
+Checkpoints (``checkpoint_state``) hold only tensors, dicts, lists, str, int, float, bool and
+None, so ``torch.load(weights_only=True)`` reads them.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import torch
+
+from seathru.core.losses import (distortion_loss, mse, psnr_from_mse, reconstruction_loss, total_variation_3d,
+                                 transmittance_prior)
+from seathru.core.model import ModelConfig, SeaThruModel
+from seathru.core.rays import RayBatch, RayDataset
+from seathru.errors import PipelineError
+
+CHECKPOINT_FORMAT = "seathru-train-checkpoint/1"
+
+
+@dataclass
+class TrainCallbacks:
+    """Hooks the step passes in (all optional)."""
+
+    progress: Callable[[int, dict], None] | None = None     # every step: (step, stats)
+    log_row: Callable[[dict], None] | None = None           # each train_log row
+    checkpoint: Callable[[dict], None] | None = None        # a checkpoint dict to store
+    message: Callable[[str], None] | None = None            # human-readable events
+    batch_hook: Callable[[int, RayBatch], RayBatch] | None = None  # tests: alter a batch
+
+
+@dataclass
+class TrainResult:
+    steps: int
+    elapsed_s: float
+    stopped_by: str                 # "steps" | "time"
+    log: list[dict]
+    selection: dict
+    rollbacks: int
+    final_test_psnr: float | None
+    train_step_rate: float          # steps per second in this run
+    rays_per_second: float
+
+
+def log_spaced_steps(limit: int) -> set[int]:
+    """1, 2, 3, 5, 7, 10, 20, 30, 50, 70, 100, ... up to ``limit``."""
+    steps, decade = set(), 1
+    while decade <= limit:
+        for m in (1, 2, 3, 5, 7):
+            if m * decade <= limit:
+                steps.add(m * decade)
+        decade *= 10
+    return steps
+
+
+def _adam(groups: list[dict]) -> torch.optim.Adam:
+    try:
+        return torch.optim.Adam(groups, betas=(0.9, 0.99), eps=1e-15, fused=True)
+    except (RuntimeError, TypeError):
+        return torch.optim.Adam(groups, betas=(0.9, 0.99), eps=1e-15)
+
+
+class Trainer:
+    def __init__(self, model: SeaThruModel, data: RayDataset, test: RayBatch | None = None,
+                 callbacks: TrainCallbacks | None = None, device="cpu", frames=None):
+        self.model = model
+        self.config: ModelConfig = model.config
+        self.data = data
+        self.test = test.to(device) if test is not None else None
+        self.callbacks = callbacks or TrainCallbacks()
+        self.device = torch.device(device)
+        self.generator = torch.Generator().manual_seed(self.config.seed + 1)
+        self.probe = data.fixed_subset(self.config.eval_rays, self.config.seed + 2)
+        self.step = 0
+        self.elapsed_s = 0.0
+        self.lr_scale = 1.0
+        self.rollbacks = 0
+        self.log: list[dict] = []
+        self.selection: dict | None = None
+        if self.config.medium != "auto":
+            self.selection = {"requested": self.config.medium, "chosen": self.config.medium,
+                              "reason": "set explicitly (--medium)"}
+        self.optimizer = self._build_optimizer()
+        self._snapshot = None
+        self._eval_steps = log_spaced_steps(self.config.steps)
+        self._seen = self._seen_mask(frames)
+        self._seen_cache: dict = {}
+        self._threads = ThreadTuner(torch.get_num_threads()) if self.device.type == "cpu" \
+            else None
+
+    def _seen_mask(self, frames) -> torch.Tensor | None:
+        """(1, 1, D, H, W) 1 where at least ``min_views`` training cameras see a grid vertex.
+
+        Density elsewhere is seen by one camera only and can take any value that paints that
+        camera's image (the floaters in front of it): its gradient is dropped.
+        """
+        c = self.config
+        if frames is None or c.min_views <= 1 or c.field != "grid":
+            return None
+        from seathru.core.fields import axis_resolution, grid_vertices
+        from seathru.core.rays import view_counts
+
+        dims = axis_resolution(max(c.density_res) // 2, self.model.field.extent)
+        points = grid_vertices(self.model.box, dims)
+        counts = view_counts(points.reshape(-1, 3).numpy(), frames)
+        mask = torch.from_numpy(counts >= c.min_views).float().reshape(1, 1, *points.shape[:3])
+        return mask.to(self.device)
+
+    def _mask_density_gradients(self) -> None:
+        if self._seen is None:
+            return
+        for param in self.model.field.grid_parameters():
+            if param.grad is None:
+                continue
+            shape = tuple(param.shape[2:])
+            if shape not in self._seen_cache:
+                self._seen_cache[shape] = torch.nn.functional.interpolate(
+                    self._seen, size=shape, mode="nearest")
+            param.grad.mul_(self._seen_cache[shape])
+
+    # -------------------------------------------------------------------- optimiser
+    def _groups(self) -> list[dict]:
+        c, m = self.config, self.model
+        spec = [("density", m.field.grid_parameters(), c.lr * c.density_lr_scale),
+                ("features", m.field.feature_parameters(), c.lr),
+                ("networks", m.field.network_parameters() + m.medium.network_parameters(),
+                 c.lr * c.network_lr_scale),
+                ("medium", m.medium.global_parameters(), c.lr * c.medium_lr_scale)]
+        return [{"params": params, "lr": lr, "base_lr": lr, "name": name}
+                for name, params, lr in spec if params]
+
+    def _build_optimizer(self) -> torch.optim.Optimizer:
+        return _adam(self._groups())
+
+    def _swap_parameters(self, swapped: dict) -> None:
+        """Coarse-to-fine: move Adam's moments to the resampled parameters (same resampling)."""
+        for name, (old, new) in swapped.items():
+            state = self.optimizer.state.pop(old, None)
+            for group in self.optimizer.param_groups:
+                group["params"] = [new if p is old else p for p in group["params"]]
+            if state:
+                resized = {}
+                for key, value in state.items():
+                    if torch.is_tensor(value) and value.shape == old.shape:
+                        resized[key] = _resample_like(value, new.shape)
+                    else:
+                        resized[key] = value
+                self.optimizer.state[new] = resized
+
+    def _set_lr(self, progress: float) -> None:
+        c = self.config
+        warm = min(1.0, (self.step + 1) / max(1, c.warmup_steps))
+        decay = c.lr_final_ratio ** min(1.0, progress)
+        for group in self.optimizer.param_groups:
+            group["lr"] = group["base_lr"] * warm * decay * self.lr_scale
+
+    # -------------------------------------------------------------------- checkpoints
+    def checkpoint_state(self) -> dict:
+        rng = {"torch": torch.get_rng_state(), "batch": self.generator.get_state()}
+        if torch.cuda.is_available():
+            rng["cuda"] = torch.cuda.get_rng_state_all()
+        return {"format": CHECKPOINT_FORMAT, "config": self.config.to_dict(),
+                "scene": self.model.scene,
+                "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
+                "optimizer": _to_cpu(self.optimizer.state_dict()),
+                "step": self.step, "elapsed_s": self.elapsed_s, "rng": rng,
+                "log": [dict(row) for row in self.log], "lr_scale": self.lr_scale,
+                "rollbacks": self.rollbacks,
+                "selection": copy.deepcopy(self.selection)}
+
+    def load_checkpoint(self, ckpt: dict) -> None:
+        self.model.load_state_dict_resizing(ckpt["model"])
+        self.model.to(self.device)
+        self.optimizer = self._build_optimizer()
+        self.optimizer.load_state_dict(ckpt["optimizer"])
+        self.step = int(ckpt["step"])
+        self.elapsed_s = float(ckpt["elapsed_s"])
+        torch.set_rng_state(ckpt["rng"]["torch"])
+        self.generator.set_state(ckpt["rng"]["batch"])
+        if "cuda" in ckpt["rng"] and torch.cuda.is_available():
+            torch.cuda.set_rng_state_all(ckpt["rng"]["cuda"])
+        self.log = [dict(row) for row in ckpt["log"]]
+        self.lr_scale = float(ckpt["lr_scale"])
+        self.rollbacks = int(ckpt["rollbacks"])
+        self.selection = ckpt.get("selection")
+
+    # -------------------------------------------------------------------- guard
+    def _take_snapshot(self) -> None:
+        self._snapshot = {"model": {k: v.detach().clone() for k, v in
+                                    self.model.state_dict().items()},
+                          "optimizer": copy.deepcopy(self.optimizer.state_dict())}
+
+    def _rollback(self, why: str) -> None:
+        self.rollbacks += 1
+        if self.rollbacks > self.config.nan_max_retries:
+            raise PipelineError(
+                f"training diverged: {why} at step {self.step}, {self.rollbacks} times despite "
+                f"rolling back and lowering the learning rate (now {self.lr_scale:g} x --lr); "
+                "lower --lr, or check the input images for NaN/Inf values")
+        self.lr_scale *= 0.5
+        if self._snapshot is not None:
+            self.model.load_state_dict_resizing(self._snapshot["model"])
+            self.optimizer = self._build_optimizer()
+            self.optimizer.load_state_dict(copy.deepcopy(self._snapshot["optimizer"]))
+        self.model.refresh_occupancy()
+        self._say(f"step {self.step}: {why}; rolled back to the last good state, learning rate "
+                  f"x{self.lr_scale:g} (rollback {self.rollbacks}/{self.config.nan_max_retries})")
+
+    # -------------------------------------------------------------------- evaluation
+    @torch.no_grad()
+    def render_batch(self, rays: RayBatch, chunk: int = 8192) -> dict[str, torch.Tensor]:
+        was_training = self.model.training
+        self.model.eval()
+        outs = {"rgb": [], "backscatter": [], "opacity": [], "depth": []}
+        for start in range(0, len(rays), chunk):
+            part = rays.subset(slice(start, start + chunk))
+            r = self.model(part.origins, part.directions, part.near, part.far).render
+            outs["rgb"].append(r.rgb)
+            outs["backscatter"].append(r.backscatter)
+            outs["opacity"].append(r.opacity)
+            outs["depth"].append(r.depth_mean)
+        self.model.train(was_training)
+        return {k: torch.cat(v) for k, v in outs.items()}
+
+    def test_psnr(self) -> float | None:
+        if self.test is None or len(self.test) == 0:
+            return None
+        start = time.perf_counter()
+        rendered = self.render_batch(self.test)
+        value = psnr_from_mse(float(mse(rendered["rgb"], self.test.rgb)))
+        self._eval_seconds = getattr(self, "_eval_seconds", 0.0) + time.perf_counter() - start
+        return value
+
+    # -------------------------------------------------------------------- medium selection
+    def select_medium(self) -> dict:
+        """``--medium auto``: off (plain NeRF) or one global medium, the simplest that fits.
+
+        The global medium has been trained so far; if what it adds to the images is negligible
+        (backscatter below ``auto_backscatter_share`` of the image and attenuation over the
+        scene depth below ``auto_attenuation``) the water is switched off. View-dependent water
+        is never picked automatically: a direction-dependent medium can also absorb errors of a
+        half-trained scene (a far seabed not yet reconstructed looks like direction-dependent
+        water), so no statistic available this early tells the two apart; ask for it with
+        ``--medium view``.
+        """
+        c = self.config
+        probe = self.probe
+        rendered = self.render_batch(probe)
+        water = self.model.water_parameters()
+        mean_rgb = rendered["rgb"].mean(0).clamp_min(1e-6)
+        backscatter_share = float((rendered["backscatter"].mean(0) / mean_rgb).max())
+        hit = rendered["opacity"] > 0.5
+        if bool(hit.any()):
+            depth = float(torch.quantile(rendered["depth"][hit].float(), 0.9))
+        else:
+            depth = float(self.model.scene.get("typical_range", 1.0))
+        attenuation = 1.0 - math.exp(-max(water["sigma_attn"]) * depth)
+        stats = {"backscatter_share": backscatter_share, "attenuation_over_depth": attenuation,
+                 "scene_depth_p90": depth,
+                 "object_hit_share": float(hit.float().mean()),
+                 "fitted_global": water}
+        thresholds = {"backscatter_share": c.auto_backscatter_share,
+                      "attenuation_over_depth": c.auto_attenuation}
+        if backscatter_share < c.auto_backscatter_share and attenuation < c.auto_attenuation:
+            chosen = "off"
+            reason = (f"fitted water is negligible: backscatter is {100 * backscatter_share:.2f}% "
+                      f"of the image (< {100 * c.auto_backscatter_share:g}%) and attenuation "
+                      f"over the scene depth ({depth:.3g}) is {100 * attenuation:.2f}% "
+                      f"(< {100 * c.auto_attenuation:g}%): clear water, plain NeRF")
+        else:
+            chosen = "global"
+            reason = (f"water is visible: backscatter is {100 * backscatter_share:.1f}% of the "
+                      f"image (threshold {100 * c.auto_backscatter_share:g}%), attenuation "
+                      f"{100 * attenuation:.1f}% over the scene depth {depth:.3g} (threshold "
+                      f"{100 * c.auto_attenuation:g}%): one global medium (view-dependent water "
+                      "is only used when asked for with --medium view)")
+        self.model.medium.set_mode(chosen)
+        self.model.medium.to(self.device)
+        return {"requested": "auto", "chosen": chosen, "reason": reason,
+                "candidates": ["off", "global"],
+                "decided_at_step": self.step, "decided_at_progress": self._progress(),
+                "statistics": stats, "thresholds": thresholds}
+
+    # -------------------------------------------------------------------- loop
+    def _progress(self) -> float:
+        c = self.config
+        budget = c.max_minutes * 60.0 if c.max_minutes and c.max_minutes > 0 else math.inf
+        return max(self.step / c.steps, self.elapsed_s / budget)
+
+    def _say(self, text: str) -> None:
+        if self.callbacks.message:
+            self.callbacks.message(text)
+
+    def _loss(self, batch: RayBatch) -> tuple[torch.Tensor, torch.Tensor, dict]:
+        c = self.config
+        out = self.model(batch.origins, batch.directions, batch.near, batch.far,
+                         generator=self.generator)
+        render = out.render
+        recon = reconstruction_loss(render.rgb, batch.rgb, c.recon_eps)
+        loss = recon
+        if out.coarse is not None:
+            loss = loss + reconstruction_loss(out.coarse.rgb, batch.rgb, c.recon_eps)
+        ramp = min(1.0, max(0.0, (self._progress() - c.transmittance_prior_start) / 0.1)) \
+            if c.transmittance_prior_start > 0 else 1.0
+        if c.transmittance_prior_weight > 0 and ramp > 0:
+            loss = loss + ramp * c.transmittance_prior_weight * transmittance_prior(
+                render.transmittance[:, -1])
+        if c.distortion_weight > 0 and out.s_edges is not None:
+            loss = loss + c.distortion_weight * distortion_loss(render.weights, out.s_edges)
+        if c.density_tv_weight > 0 and c.field == "grid":
+            loss = loss + c.density_tv_weight * total_variation_3d(
+                self.model.field.density.raw, 8192, self.generator)
+        return loss, mse(render.rgb.detach(), batch.rgb), {}
+
+    def run(self) -> TrainResult:
+        c = self.config
+        model = self.model
+        model.train()
+        budget = c.max_minutes * 60.0 if c.max_minutes and c.max_minutes > 0 else math.inf
+        run_start = time.perf_counter()
+        self._eval_seconds = 0.0  # held-out evaluation for the log: not training time
+        base_elapsed, base_step = self.elapsed_s, self.step
+        stopped_by = "steps"
+        acc_loss = acc_mse = 0.0
+        acc_n = 0
+        # Resume: the stage follows the checkpoint's progress.
+        swapped = model.set_stage(model.stage_for_progress(self._progress()))
+        self._swap_parameters(swapped)
+        model.refresh_occupancy()
+        self._take_snapshot()
+        last_test = None
+        while self.step < c.steps:
+            self.elapsed_s = base_elapsed + (time.perf_counter() - run_start - self._eval_seconds)
+            if self.elapsed_s >= budget:
+                stopped_by = "time"
+                break
+            progress = self._progress()
+            stage = model.stage_for_progress(progress)
+            if stage != int(model.stage):
+                self._swap_parameters(model.set_stage(stage))
+                model.refresh_occupancy()
+                self._take_snapshot()
+                self._say(f"step {self.step}: grids upsampled to stage {stage} (density "
+                          f"{c.density_res[stage]}, planes {c.plane_res[stage]})")
+            if self.selection is None and progress >= c.auto_select_at:
+                self.selection = self.select_medium()
+                self._say(f"step {self.step}: medium '{self.selection['chosen']}': "
+                          f"{self.selection['reason']}")
+            self._set_lr(progress)
+            model.set_progress(progress)
+            if self.step % c.occupancy_refresh_every == 0:
+                model.refresh_occupancy()
+
+            if self._threads is not None:
+                self._threads.before_step()
+            batch = self.data.sample(c.batch_rays, self.generator)
+            if self.callbacks.batch_hook is not None:
+                batch = self.callbacks.batch_hook(self.step, batch)
+            loss, batch_mse, _ = self._loss(batch)
+            if not bool(torch.isfinite(loss)):
+                self._rollback("non-finite loss")
+                continue
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            self._mask_density_gradients()
+            params = [p for g in self.optimizer.param_groups for p in g["params"]
+                      if p.grad is not None]
+            grad_norm = torch.nn.utils.clip_grad_norm_(params, float("inf"))
+            if not bool(torch.isfinite(grad_norm)):
+                self._rollback("non-finite gradient")
+                continue
+            self.optimizer.step()
+            self.step += 1
+            if self._threads is not None:
+                self._threads.after_step()
+            loss_value, mse_value = float(loss.detach()), float(batch_mse)
+            acc_loss += loss_value
+            acc_mse += mse_value
+            acc_n += 1
+            if self.step % c.snapshot_every == 0:
+                self._take_snapshot()
+
+            self.elapsed_s = base_elapsed + (time.perf_counter() - run_start - self._eval_seconds)
+            run_steps = self.step - base_step
+            rate = run_steps / max(1e-9, time.perf_counter() - run_start)
+            if self.callbacks.progress:
+                self.callbacks.progress(self.step, {
+                    "loss": loss_value, "psnr": psnr_from_mse(mse_value),
+                    "rays_per_s": rate * c.batch_rays, "medium": model.medium.mode,
+                    "progress": self._progress()})
+            final = self.step >= c.steps
+            is_eval = self.step in self._eval_steps or final
+            if is_eval or self.step % c.log_every == 0:
+                test = self.test_psnr() if is_eval else None
+                last_test = test if test is not None else last_test
+                self._append_log(acc_loss / acc_n, acc_mse / acc_n, test)
+                acc_loss = acc_mse = 0.0
+                acc_n = 0
+            if c.checkpoint_every and self.step % c.checkpoint_every == 0 and not final:
+                self._checkpoint()
+
+        self.elapsed_s = base_elapsed + (time.perf_counter() - run_start - self._eval_seconds)
+        if self.selection is None:  # stopped before the decision point: decide now
+            self.selection = self.select_medium()
+            self._say(f"medium '{self.selection['chosen']}': {self.selection['reason']}")
+        if not self.log or self.log[-1]["step"] != self.step or self.log[-1]["test_psnr"] is None:
+            test = self.test_psnr()
+            last_test = test
+            if acc_n:
+                self._append_log(acc_loss / acc_n, acc_mse / acc_n, test)
+            elif self.log and self.log[-1]["step"] == self.step:
+                self.log[-1]["test_psnr"] = test
+            else:
+                self._append_log(float("nan"), float("nan"), test)
+        self._checkpoint()
+        run_time = time.perf_counter() - run_start
+        run_steps = self.step - base_step
+        return TrainResult(steps=self.step, elapsed_s=self.elapsed_s, stopped_by=stopped_by,
+                           log=self.log, selection=self.selection, rollbacks=self.rollbacks,
+                           final_test_psnr=last_test,
+                           train_step_rate=run_steps / max(run_time, 1e-9),
+                           rays_per_second=run_steps * c.batch_rays / max(run_time, 1e-9))
+
+    def _append_log(self, loss: float, batch_mse: float, test: float | None) -> None:
+        row = {"step": self.step, "wall_time_s": round(self.elapsed_s, 3), "loss": loss,
+               "train_psnr": psnr_from_mse(batch_mse) if batch_mse == batch_mse else None,
+               "test_psnr": test}
+        self.log.append(row)
+        if self.callbacks.log_row:
+            self.callbacks.log_row(row)
+
+    def _checkpoint(self) -> None:
+        if self.callbacks.checkpoint:
+            self.callbacks.checkpoint(self.checkpoint_state())
+
+
+class ThreadTuner:
+    """Picks the faster of ``max_threads`` and 1 CPU thread, measured on real steps.
+
+    On a shared machine two OpenMP threads can be several times slower than one (each parallel
+    region waits for a core that someone else holds); on an idle one they are faster. Every
+    ``period`` steps, ``probe`` steps run with each setting and the faster one is kept.
+    """
+
+    def __init__(self, max_threads: int, probe: int = 4, period: int = 300):
+        self.options = [max_threads, 1] if max_threads > 1 else [max_threads]
+        self.probe, self.period = probe, period
+        self.count = 0
+        self.times: dict[int, list[float]] = {}
+        self.current = max_threads
+        self._start = 0.0
+
+    def _phase(self) -> int | None:
+        position = self.count % self.period
+        start = 3  # skip the first steps of a run (allocations, caches)
+        if len(self.options) < 2 or not start <= position < start + 2 * self.probe:
+            return None
+        return self.options[(position - start) // self.probe]
+
+    def before_step(self) -> None:
+        threads = self._phase()
+        if threads is not None and threads != torch.get_num_threads():
+            torch.set_num_threads(threads)
+        self._start = time.perf_counter()
+
+    def after_step(self) -> None:
+        threads = self._phase()
+        if threads is not None:
+            self.times.setdefault(threads, []).append(time.perf_counter() - self._start)
+        self.count += 1
+        if threads is not None and self._phase() is None:  # probe window over: choose
+            best = min(self.options, key=lambda n: sorted(self.times.get(n, [math.inf]))[
+                len(self.times.get(n, [0])) // 2])
+            self.current = best
+            torch.set_num_threads(best)
+            self.times = {}
+
+
+def _resample_like(value: torch.Tensor, shape) -> torch.Tensor:
+    """Resample an optimiser moment to a parameter's new grid shape (corner aligned; a convex
+    combination, so second moments stay non-negative)."""
+    mode = "trilinear" if value.dim() == 5 else "bilinear"
+    return torch.nn.functional.interpolate(value, size=tuple(shape[2:]), mode=mode,
+                                           align_corners=True)
+
+
+def _to_cpu(obj):
+    if torch.is_tensor(obj):
+        return obj.detach().cpu()
+    if isinstance(obj, dict):
+        return {k: _to_cpu(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_to_cpu(v) for v in obj]
+    if isinstance(obj, tuple):
+        return tuple(_to_cpu(v) for v in obj)
+    return obj

@@ -1,0 +1,123 @@
+"""The report step, on a results tree made by the real render and evaluate steps from fabricated
+datasets (a stand-in renderer, see tests/test_render_evaluate.py), plus failed datasets."""
+
+from __future__ import annotations
+
+import base64
+import os
+import re
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from seathru.cli import main
+from seathru.io.cameras import read_cameras
+from seathru.io.images import read_image
+from seathru.steps.render import render_dataset
+from tests.test_render_evaluate import RENDER_SETTINGS, make_fake_dataset
+
+ERROR_MESSAGE = ("results/broken/ingest/IMG_0003.NEF: the raw image data is missing "
+                 "(stripped file?); remove it from the dataset")
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    base = tmp_path_factory.mktemp("report")
+    results, logs = base / "results", base / "logs"
+    for dataset, truth, seed in (("sim", True, 0), ("real", False, 1)):
+        fake = make_fake_dataset(results / dataset, seed=seed, noise=0.002 + 0.01 * seed)
+        render_dataset(fake["render_fn"], read_cameras(fake["poses"] / "cameras.json"),
+                       results / dataset / "render", dict(RENDER_SETTINGS, path_frames=0))
+        arguments = ["evaluate", "--renders", str(results / dataset / "render"),
+                     "--cameras", str(fake["poses"] / "cameras.json"),
+                     "--train-dir", str(fake["train"]), "--out",
+                     str(results / dataset / "evaluate")]
+        if truth:
+            arguments += ["--truth", str(fake["truth"])]
+        assert main(arguments) == 0
+        (logs / dataset).mkdir(parents=True)
+        (logs / dataset / "train.log").write_text("step 100 loss 0.005\n")
+
+    # failed in ingest; an older poses log from a previous run has an error line too
+    (logs / "broken").mkdir(parents=True)
+    (logs / "broken" / "poses.log").write_text("seathru poses: error: stale message\n")
+    old = time.time() - 3600
+    os.utime(logs / "broken" / "poses.log", (old, old))
+    (logs / "broken" / "ingest.log").write_text(
+        "INFO decoding 12 files\nseathru ingest: error: first problem\n"
+        f"WARNING something\nseathru ingest: error: {ERROR_MESSAGE}\n")
+    # crashed without a PipelineError (a traceback)
+    (logs / "crashed").mkdir(parents=True)
+    (logs / "crashed" / "train.log").write_text(
+        "Traceback (most recent call last):\n  ...\nRuntimeError: CUDA out of memory\n")
+
+    sheet = base / "datasets.tsv"
+    sheet.write_text("dataset\tsource\tpath\toptions\n"
+                     "sim\tsimulated\t\t\n"
+                     "real\tsimulated\t\ttrain.max_minutes=2\n"
+                     "broken\tllff\t/data/broken\t\n"
+                     "crashed\tllff\t/data/crashed\t\n"
+                     "pending\tllff\t/data/pending\t\n")
+    out = base / "results" / "report"
+    start = time.perf_counter()
+    assert main(["report", "--results", str(results), "--datasets", str(sheet),
+                 "--logs", str(logs), "--out", str(out)]) == 0
+    return {"out": out, "seconds": time.perf_counter() - start}
+
+
+def test_summary_table_lists_every_dataset_with_status(report):
+    table = pd.read_csv(report["out"] / "summary.csv")
+    assert list(table["dataset"]) == ["sim", "real", "broken", "crashed", "pending"]
+    status = dict(zip(table["dataset"], table["status"]))
+    assert status == {"sim": "ok", "real": "ok", "broken": "failed", "crashed": "failed",
+                      "pending": "failed"}
+    rows = table.set_index("dataset")
+    assert rows.loc["broken", "failed_step"] == "ingest"
+    assert rows.loc["broken", "error"] == ERROR_MESSAGE
+    assert rows.loc["crashed", "failed_step"] == "train"
+    assert "CUDA out of memory" in rows.loc["crashed", "error"]
+    assert "not run" in rows.loc["pending", "error"]
+    evaluated = pd.read_csv(report["out"].parent / "sim" / "evaluate" / "metrics.csv")
+    assert rows.loc["sim", "psnr_linear"] == pytest.approx(evaluated["psnr_linear"].mean(),
+                                                           rel=1e-5)
+    assert rows.loc["sim", "restored_psnr_linear"] > rows.loc["sim", "full_vs_clean_psnr_linear"]
+    assert np.isnan(rows.loc["real", "restored_psnr_linear"])   # no truth for this one
+    assert rows.loc["sim", "train_time_s"] == pytest.approx(41.5)
+    assert rows.loc["sim", "medium"] == "seathru"
+    assert rows.loc["sim", "render_fps"] > 0
+
+
+def test_plots_and_strips_are_images(report):
+    out = report["out"]
+    for name in ("psnr_vs_time.png", "speed_vs_error.png", "water_parameters.png"):
+        image = read_image(out / name)
+        assert image.ndim == 3 and min(image.shape[:2]) > 200
+        assert image.std() > 0.01   # something is drawn
+    assert sorted(p.name for p in (out / "strips").iterdir()) == ["real.png", "sim.png"]
+    strip = read_image(out / "strips" / "sim.png")
+    assert strip.shape[1] > 2 * strip.shape[0]   # five columns of views, two rows
+
+
+def test_html_is_self_contained_with_table_plots_and_errors(report):
+    page = (report["out"] / "summary.html").read_text()
+    assert "<table" in page and "sim" in page and "pending" in page
+    assert ERROR_MESSAGE in page and "stage <code>ingest</code>" in page
+    assert "stale message" not in page and "first problem" not in page
+    images = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page)
+    assert len(images) == 5   # three plots, two strips
+    assert all(base64.b64decode(data)[:8] == b"\x89PNG\r\n\x1a\n" for data in images)
+    assert 'src="http' not in page
+
+
+def test_report_runtime_is_small(report):
+    assert report["seconds"] < 60
+
+
+def test_report_rejects_a_sheet_without_dataset_column(tmp_path, capsys):
+    sheet = tmp_path / "sheet.tsv"
+    sheet.write_text("name\tsource\nx\tllff\n")
+    assert main(["report", "--results", str(tmp_path), "--datasets", str(sheet),
+                 "--out", str(tmp_path / "out")]) == 2
+    assert "no 'dataset' column" in capsys.readouterr().err
