@@ -289,7 +289,8 @@ def test_lpips_rejects_incomplete_weights():
     with pytest.raises(ValueError, match="trunk weights missing"):
         metrics.lpips_from_state_dict({k: v for k, v in state.items() if k.startswith("lin")})
     with pytest.raises(ValueError, match="lin0..lin4"):
-        metrics.lpips_from_state_dict({k: v for k, v in state.items() if k != "lin2.model.1.weight"})
+        metrics.lpips_from_state_dict({k: v for k, v in state.items()
+                                       if k != "lin2.model.1.weight"})
 
 
 # -------------------------------------------------------------------------------------- display

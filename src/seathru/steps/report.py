@@ -173,7 +173,7 @@ def collect_dataset(row: pd.Series, results: Path, logs: Path | None) -> dict:
 def _medium(selection) -> str | None:
     if not isinstance(selection, dict):
         return None
-    for key in ("mode", "medium", "selected", "choice"):
+    for key in ("final_mode", "chosen", "mode", "medium", "selected"):
         if key in selection:
             return str(selection[key])
     return json.dumps(selection)[:80]
@@ -435,10 +435,13 @@ def build_html(table: pd.DataFrame, records: list[dict], out: Path, figures: lis
                         for v in row.tolist())
         body.append(f'<tr class="{css}">{cells}</tr>')
     failures = [r for r in records if r["status"] != "ok"]
-    failure_items = "".join(
-        f"<li><b>{html.escape(r['dataset'])}</b>: "
-        f"{'stage <code>' + html.escape(str(r['failed_step'])) + '</code>: ' if r['failed_step'] else ''}"
-        f"<span class=\"error\">{html.escape(str(r['error']))}</span></li>" for r in failures)
+    def failure_item(record: dict) -> str:
+        stage = (f"stage <code>{html.escape(str(record['failed_step']))}</code>: "
+                 if record["failed_step"] else "")
+        return (f"<li><b>{html.escape(record['dataset'])}</b>: {stage}"
+                f"<span class=\"error\">{html.escape(str(record['error']))}</span></li>")
+
+    failure_items = "".join(failure_item(r) for r in failures)
     water_rows = []
     for record in records:
         water = ((record["summary"] or {}).get("truth") or {}).get("water") or {}
@@ -450,7 +453,8 @@ def build_html(table: pd.DataFrame, records: list[dict], out: Path, figures: lis
             error = (water.get("relative_error") or {}).get(key)
             water_rows.append(
                 f"<tr><td>{html.escape(record['dataset'])}</td><td>{key}</td>"
-                f"<td>{_triple(fitted)}</td><td>{_triple(truth)}</td><td>{_triple(error)}</td></tr>")
+                f"<td>{_triple(fitted)}</td><td>{_triple(truth)}</td>"
+                f"<td>{_triple(error)}</td></tr>")
     sections = [
         "<h2>Summary</h2>",
         f'<table class="summary"><thead><tr>{header}</tr></thead><tbody>{"".join(body)}'
