@@ -35,9 +35,10 @@ def _step_flag_names():
     names = {}
     for action in parser._subparsers._group_actions:
         for step, sub in action.choices.items():
-            names[step] = {opt[2:].replace("-", "_").removeprefix("no_")
-                           for act in sub._actions for opt in act.option_strings
-                           if opt.startswith("--")}
+            long_names = {opt[2:].replace("-", "_") for act in sub._actions
+                          for opt in act.option_strings if opt.startswith("--")}
+            # --no-x negates a boolean --x, which the config writes as x: false
+            names[step] = long_names | {n.removeprefix("no_") for n in long_names}
     return names
 
 
