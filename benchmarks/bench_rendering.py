@@ -239,6 +239,9 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (at most 2)")
     parser.add_argument("--quick", action="store_true", help="fewer sizes and repeats (smoke run)")
     parser.add_argument("--no-write", action="store_true", help=f"do not write {RESULTS.name}")
+    parser.add_argument("--out", type=Path, default=RESULTS, help="where the tables are written")
+    parser.add_argument("--throughput-only", action="store_true",
+                        help="skip the accuracy tables (CPU, device-independent)")
     args = parser.parse_args()
     threads = max(1, min(args.threads, 2))
     torch.set_num_threads(threads)
@@ -255,6 +258,12 @@ def main() -> None:
     ray_counts = [1024, 4096] if args.quick else [1024, 4096, 16384]
     repeats = 2 if args.quick else 5
     lines = header + throughput_table(devices, ray_counts, 64, repeats) + [""]
+    if args.throughput_only:
+        if not args.no_write:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            write_text(args.out, "\n".join(lines))
+            print(f"wrote {args.out}")
+        return
 
     counts = [16, 32, 64] if args.quick else [16, 32, 64, 128]
     extra, rays, timing_rays = 128, 256, 4096
@@ -281,9 +290,9 @@ def main() -> None:
         "the sample midpoints, shared by all methods. Times are medians on a shared 2-core machine "
         "(noisy to ~±30%).", ""]
     if not args.no_write:
-        RESULTS.parent.mkdir(parents=True, exist_ok=True)
-        write_text(RESULTS, "\n".join(lines))
-        print(f"wrote {RESULTS}")
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        write_text(args.out, "\n".join(lines))
+        print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":

@@ -23,12 +23,12 @@ def _available_steps() -> dict:
     return steps
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(steps: dict | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="seathru", description=__doc__)
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="step", required=True, metavar="STEP")
-    for name, module in _available_steps().items():
+    for name, module in (_available_steps() if steps is None else steps).items():
         doc = (module.__doc__ or name).strip().splitlines()[0]
         step_parser = sub.add_parser(name, help=doc, description=module.__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -37,8 +37,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | None = None, only: str | None = None) -> int:
+    """Run ``seathru STEP ...``. ``only`` imports that one step alone, for scripts on machines
+    that lack another step's dependencies (a GPU node without pycolmap, say)."""
+    steps = None if only is None else {only: importlib.import_module(f"seathru.steps.{only}")}
+    if only is not None:
+        argv = [only, *(sys.argv[1:] if argv is None else argv)]
+    args = build_parser(steps).parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:

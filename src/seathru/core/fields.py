@@ -7,8 +7,10 @@ resolution that falls off with distance. Grid coordinates are ``g = contract(u) 
 ``[-1, 1]^3``, the ``align_corners=True`` convention of ``torch.nn.functional.grid_sample``.
 
 ``GridField`` (the default, fast model):
-- density: a dense 3D grid of raw values, trilinearly interpolated, then ``exp`` (truncated
-  gradient), i.e. post-activation as in DVGO, so one voxel can hold a sharp surface;
+- density: the sum of a coarse and a fine dense 3D grid of raw values, trilinearly
+  interpolated, then ``exp`` (truncated gradient), i.e. post-activation as in DVGO, so one voxel
+  can hold a sharp surface; the coarse grid (each voxel crossed by many rays) finds the geometry
+  in a few dozen steps, the fine one adds detail;
 - colour: factorised tri-plane features (K-Planes: the Hadamard product of the xy, xz and yz
   plane features, at a coarse and a fine level, concatenated), decoded by a tiny MLP, optionally
   with the view direction (spherical harmonics, degree 3);

@@ -1,5 +1,12 @@
 """The SeaThru-NeRF model: object field + water medium + sampler + medium-aware renderer.
 
+Default (``field="grid"``, ``sampler="occupancy"``): per ray, 64 + 16 candidate bins (linear in
+the scene box, 1/t beyond) are weighted by the field's own density, 16 contiguous intervals are
+drawn from that histogram, the density grid gives sigma at their midpoints, the tri-plane
+colour is decoded only where a sample's weight matters, and ``render_seathru`` integrates
+objects and water in closed form (water before, between and after the intervals). The paper
+baseline (``field="mlp"``, ``sampler="hierarchical"``) uses a PE MLP with 128 + 32 samples.
+
 ``SeaThruModel(config, scene)`` renders rays (``forward``); ``from_checkpoint`` rebuilds it from
 ``model.pt`` or a training checkpoint (the dict ``torch.load(path, weights_only=True)`` returns);
 ``water_parameters`` gives the fitted water in normalised units.
@@ -72,7 +79,9 @@ class ModelConfig:
     render_method: str = "exact"            # "exact" | "paper"
     water_before: bool = True
     water_after: bool = True
-    auto_select_at: float = 0.2             # progress at which --medium auto decides
+    auto_select_at: float = 0.8             # progress at which --medium auto decides
+    auto_trial_share: float = 0.05          # share of the run each trial branch trains
+    auto_margin_db: float = 0.5             # water must beat no water by this on held-out rays
     auto_backscatter_share: float = 0.01    # below: backscatter negligible
     auto_attenuation: float = 0.02          # below: attenuation over the scene depth negligible
     # training
@@ -232,7 +241,10 @@ class SeaThruModel(nn.Module):
 
     def set_stage(self, stage: int) -> dict[str, tuple[nn.Parameter, nn.Parameter]]:
         """Resample the grids to ``stage``'s resolution; returns {name: (old, new) parameter}."""
-        if self.config.field != "grid" or stage == int(self.stage):
+        if stage == int(self.stage):
+            return {}
+        if self.config.field != "grid":
+            self.stage.fill_(stage)
             return {}
         values = self.field.resize(self.config.density_res[stage], self.config.plane_res[stage])
         own = dict(self.named_parameters())
@@ -246,8 +258,11 @@ class SeaThruModel(nn.Module):
 
     # ------------------------------------------------------------------ rendering
     def refresh_occupancy(self) -> None:
-        if self.config.field == "grid":
+        """Recompute the cached occupancy grid (``occupancy_lookup="grid"`` only)."""
+        if self.config.field == "grid" and self.config.occupancy_lookup == "grid":
             self._occupancy = self.field.occupancy_density(self.config.occupancy_dilate)
+        else:
+            self._occupancy = None
 
     def _split_distance(self, origins: Tensor, dirs: Tensor, near: Tensor) -> Tensor:
         t_in, t_out = ray_box_intersect(origins, dirs, self.box.box_min, self.box.box_max)

@@ -197,6 +197,16 @@ class RayDataset:
         index = torch.randint(0, len(self), (count,), generator=generator)
         return self.rays.subset(index.to(self.rays.origins.device))
 
+    def hold_out(self, count: int, seed: int) -> RayBatch:
+        """Remove a reproducible random subset of at most ``count`` rays and return it (rays
+        the training never samples: a validation set drawn from the training views)."""
+        generator = torch.Generator().manual_seed(seed)
+        order = torch.randperm(len(self), generator=generator).to(self.rays.origins.device)
+        count = min(count, len(self) // 2)
+        held = self.rays.subset(order[:count])
+        self.rays = self.rays.subset(order[count:].sort().values)
+        return held
+
     def fixed_subset(self, count: int, seed: int) -> RayBatch:
         """A reproducible subset of at most ``count`` rays (evaluation probes)."""
         generator = torch.Generator().manual_seed(seed)

@@ -8,12 +8,16 @@ only water: samples are spent on surfaces only.
 Candidate bins (``candidate_edges``): linear in t inside the scene box, linear in 1/t beyond it
 (mip-NeRF 360's spacing for the contracted far field).
 
-``occupancy`` sampling (the fast model): the field's density grid, max-pooled and detached, is
-read at the candidate bins (nearest vertex; no gradient, so it costs a gather), turned into NeRF
+``occupancy`` sampling (the fast model): the field's own density grid is read, without
+gradient, at the candidate bins (``occupancy_lookup="exact"``: trilinear, the current density,
+one cheap forward pass over a 1-channel grid; ``"grid"``: nearest vertex of a cached, max-pooled
+copy, a plain gather, but stale and inflated, which made training worse), turned into NeRF
 weights (transmittance-aware, so surfaces behind an opaque one get few samples), mixed with a
-uniform share for exploration, and S intervals are drawn from that histogram by the inverse CDF
-(stratified, jittered in training): many short intervals around surfaces, a few long ones in
-empty water.
+uniform share for exploration (all uniform at first, annealed while the geometry forms), and S
+intervals are drawn from that histogram by the inverse CDF (stratified, jittered in training):
+many short intervals around surfaces, a few long ones in empty water. This is proposal sampling
+where the proposal is the field itself, so it needs no proposal network and no
+histogram loss.
 
 ``hierarchical`` sampling (paper baseline): stratified coarse intervals, then fine edges drawn
 from the coarse rendering weights, merged with the coarse ones (NeRF).
@@ -23,7 +27,6 @@ from __future__ import annotations
 
 import torch
 from torch import Tensor
-
 
 
 def candidate_edges(near: Tensor, far: Tensor, t_split: Tensor, n_linear: int,

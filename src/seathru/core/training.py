@@ -5,6 +5,15 @@ Progress. Training stops at ``config.steps`` or after ``config.max_minutes``, wh
 first, and every schedule (learning-rate decay, grid upsampling, the medium decision) follows
 ``progress = max(step / steps, elapsed / budget)``, so a run cut short by its time budget still
 decays its learning rate and reaches the finest grid: the model adapts to the machine it runs on.
+``elapsed`` is training time: the held-out evaluations for the log are not counted (they are
+also left out of ``wall_time_s`` in the log), the medium trial and checkpoints are.
+
+Medium (``--medium auto``): see ``Trainer.select_medium``. Losses: the paper's reconstruction
+loss on linear data, its transmittance prior, mip-NeRF 360's distortion loss (keeps each ray's
+object weight in one compact surface, so fog in the object field does not stand in for water).
+Density gradients are dropped where fewer than ``min_views`` training cameras look (what only
+one camera sees is unconstrained and becomes floaters in front of it). CPU threads: the faster
+of ``--threads`` and 1 is measured on real steps every few hundred steps (``ThreadTuner``).
 
 NaN guard. A non-finite loss or gradient norm restores the last in-memory snapshot (taken every
 ``snapshot_every`` good steps), halves the learning rate and carries on; after
@@ -19,7 +28,7 @@ from __future__ import annotations
 import copy
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import torch
@@ -85,7 +94,9 @@ class Trainer:
         self.callbacks = callbacks or TrainCallbacks()
         self.device = torch.device(device)
         self.generator = torch.Generator().manual_seed(self.config.seed + 1)
-        self.probe = data.fixed_subset(self.config.eval_rays, self.config.seed + 2)
+        # Held-out training rays (never sampled): they judge the medium model (--medium auto).
+        self.probe = data.hold_out(max(256, min(self.config.eval_rays, len(data) // 20)),
+                                   self.config.seed + 2)
         self.step = 0
         self.elapsed_s = 0.0
         self.lr_scale = 1.0
@@ -247,53 +258,102 @@ class Trainer:
         return value
 
     # -------------------------------------------------------------------- medium selection
-    def select_medium(self) -> dict:
-        """``--medium auto``: off (plain NeRF) or one global medium, the simplest that fits.
+    def _probe_psnr(self) -> float:
+        rendered = self.render_batch(self.probe)
+        return psnr_from_mse(float(mse(rendered["rgb"], self.probe.rgb)))
 
-        The global medium has been trained so far; if what it adds to the images is negligible
+    def _state(self) -> dict:
+        return {"model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},
+                "optimizer": copy.deepcopy(self.optimizer.state_dict()),
+                "generator": self.generator.get_state(), "step": self.step}
+
+    def _restore(self, state: dict) -> None:
+        self.model.load_state_dict_resizing(state["model"])
+        self.optimizer = self._build_optimizer()
+        self.optimizer.load_state_dict(copy.deepcopy(state["optimizer"]))
+        self.generator.set_state(state["generator"])
+        self.step = state["step"]
+        self.model.refresh_occupancy()
+
+    def select_medium(self) -> dict:
+        """``--medium auto``: no water (plain NeRF) or one global medium, the simplest that the
+        training views support.
+
+        The global medium has been trained so far. If what it adds to the images is negligible
         (backscatter below ``auto_backscatter_share`` of the image and attenuation over the
-        scene depth below ``auto_attenuation``) the water is switched off. View-dependent water
-        is never picked automatically: a direction-dependent medium can also absorb errors of a
-        half-trained scene (a far seabed not yet reconstructed looks like direction-dependent
-        water), so no statistic available this early tells the two apart; ask for it with
-        ``--medium view``.
+        median scene depth below ``auto_attenuation``) the water is switched off at once.
+        Otherwise both models train on from here for the same few steps on the same batches
+        (``auto_trial_share`` of the run each) and are compared on held-out training rays: the
+        water stays only if it is better by ``auto_margin_db``; training continues from the
+        branch chosen. View-dependent water is never picked automatically: a direction-
+        dependent medium can also absorb errors of a half-trained scene (a far seabed not yet
+        reconstructed looks like direction-dependent water); ask for it with ``--medium view``.
         """
         c = self.config
-        probe = self.probe
-        rendered = self.render_batch(probe)
+        rendered = self.render_batch(self.probe)
         water = self.model.water_parameters()
         mean_rgb = rendered["rgb"].mean(0).clamp_min(1e-6)
         backscatter_share = float((rendered["backscatter"].mean(0) / mean_rgb).max())
         hit = rendered["opacity"] > 0.5
         if bool(hit.any()):
-            depth = float(torch.quantile(rendered["depth"][hit].float(), 0.9))
+            depth = float(torch.quantile(rendered["depth"][hit].float(), 0.5))
         else:
             depth = float(self.model.scene.get("typical_range", 1.0))
         attenuation = 1.0 - math.exp(-max(water["sigma_attn"]) * depth)
         stats = {"backscatter_share": backscatter_share, "attenuation_over_depth": attenuation,
-                 "scene_depth_p90": depth,
-                 "object_hit_share": float(hit.float().mean()),
-                 "fitted_global": water}
+                 "scene_depth_median": depth, "object_hit_share": float(hit.float().mean()),
+                 "fitted_global": water, "validation_rays": len(self.probe)}
         thresholds = {"backscatter_share": c.auto_backscatter_share,
-                      "attenuation_over_depth": c.auto_attenuation}
+                      "attenuation_over_depth": c.auto_attenuation,
+                      "margin_db": c.auto_margin_db}
+        decided_at = {"decided_at_step": self.step, "decided_at_progress": self._progress()}
         if backscatter_share < c.auto_backscatter_share and attenuation < c.auto_attenuation:
             chosen = "off"
             reason = (f"fitted water is negligible: backscatter is {100 * backscatter_share:.2f}% "
                       f"of the image (< {100 * c.auto_backscatter_share:g}%) and attenuation "
-                      f"over the scene depth ({depth:.3g}) is {100 * attenuation:.2f}% "
+                      f"over the median scene depth ({depth:.3g}) is {100 * attenuation:.2f}% "
                       f"(< {100 * c.auto_attenuation:g}%): clear water, plain NeRF")
+            self.model.medium.set_mode(chosen)
         else:
-            chosen = "global"
-            reason = (f"water is visible: backscatter is {100 * backscatter_share:.1f}% of the "
-                      f"image (threshold {100 * c.auto_backscatter_share:g}%), attenuation "
-                      f"{100 * attenuation:.1f}% over the scene depth {depth:.3g} (threshold "
-                      f"{100 * c.auto_attenuation:g}%): one global medium (view-dependent water "
-                      "is only used when asked for with --medium view)")
-        self.model.medium.set_mode(chosen)
+            budget = c.max_minutes * 60.0 if c.max_minutes and c.max_minutes > 0 else math.inf
+            rate = self.step / max(self.elapsed_s, 1e-6)
+            horizon = min(float(c.steps), rate * budget)
+            trial = int(min(500, max(10, c.auto_trial_share * horizon)))
+            start = self._state()
+            results, ends = {}, {}
+            for mode in ("off", "global"):
+                if mode != "off":
+                    ends["off"] = self._state()
+                    self._restore(start)
+                self.model.medium.set_mode(mode)
+                progress = self._progress()
+                for _ in range(trial):
+                    self._set_lr(progress)
+                    if self._optimise_once() is not None:
+                        self.step += 1
+                results[mode] = self._probe_psnr()
+            gain = results["global"] - results["off"]
+            chosen = "global" if gain > c.auto_margin_db else "off"
+            if chosen == "off":
+                self._restore(ends["off"])
+                self.model.medium.set_mode("off")
+            stats.update({"trial_steps": trial, "validation_psnr_off": results["off"],
+                          "validation_psnr_global": results["global"]})
+            verdict = (f"better by {gain:.2f} dB > {c.auto_margin_db:g} dB: one global medium "
+                       "(view-dependent water is only used when asked for with --medium view)"
+                       if chosen == "global" else
+                       f"not better by more than {c.auto_margin_db:g} dB ({gain:+.2f} dB): "
+                       "no water, plain NeRF")
+            reason = (f"trained {trial} steps with and without water from step "
+                      f"{start['step']}: on {len(self.probe)} held-out training rays the water "
+                      f"model reaches {results['global']:.2f} dB, no water "
+                      f"{results['off']:.2f} dB; the water is {verdict} (it made up "
+                      f"{100 * backscatter_share:.1f}% of the image as backscatter, attenuation "
+                      f"{100 * attenuation:.1f}% over the median depth {depth:.3g})")
         self.model.medium.to(self.device)
+        self._take_snapshot()
         return {"requested": "auto", "chosen": chosen, "reason": reason,
-                "candidates": ["off", "global"],
-                "decided_at_step": self.step, "decided_at_progress": self._progress(),
+                "candidates": ["off", "global"], **decided_at,
                 "statistics": stats, "thresholds": thresholds}
 
     # -------------------------------------------------------------------- loop
@@ -355,8 +415,9 @@ class Trainer:
                 self._swap_parameters(model.set_stage(stage))
                 model.refresh_occupancy()
                 self._take_snapshot()
-                self._say(f"step {self.step}: grids upsampled to stage {stage} (density "
-                          f"{c.density_res[stage]}, planes {c.plane_res[stage]})")
+                if c.field == "grid":
+                    self._say(f"step {self.step}: grids upsampled to stage {stage} (density "
+                              f"{c.density_res[stage]}, planes {c.plane_res[stage]})")
             if self.selection is None and progress >= c.auto_select_at:
                 self.selection = self.select_medium()
                 self._say(f"step {self.step}: medium '{self.selection['chosen']}': "
@@ -368,23 +429,10 @@ class Trainer:
 
             if self._threads is not None:
                 self._threads.before_step()
-            batch = self.data.sample(c.batch_rays, self.generator)
-            if self.callbacks.batch_hook is not None:
-                batch = self.callbacks.batch_hook(self.step, batch)
-            loss, batch_mse, _ = self._loss(batch)
-            if not bool(torch.isfinite(loss)):
-                self._rollback("non-finite loss")
+            outcome = self._optimise_once()
+            if outcome is None:
                 continue
-            self.optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            self._mask_density_gradients()
-            params = [p for g in self.optimizer.param_groups for p in g["params"]
-                      if p.grad is not None]
-            grad_norm = torch.nn.utils.clip_grad_norm_(params, float("inf"))
-            if not bool(torch.isfinite(grad_norm)):
-                self._rollback("non-finite gradient")
-                continue
-            self.optimizer.step()
+            loss, batch_mse = outcome
             self.step += 1
             if self._threads is not None:
                 self._threads.after_step()
@@ -435,6 +483,27 @@ class Trainer:
                            final_test_psnr=last_test,
                            train_step_rate=run_steps / max(run_time, 1e-9),
                            rays_per_second=run_steps * c.batch_rays / max(run_time, 1e-9))
+
+    def _optimise_once(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """One Adam step on a fresh batch; None if the NaN guard rolled back instead."""
+        batch = self.data.sample(self.config.batch_rays, self.generator)
+        if self.callbacks.batch_hook is not None:
+            batch = self.callbacks.batch_hook(self.step, batch)
+        loss, batch_mse, _ = self._loss(batch)
+        if not bool(torch.isfinite(loss)):
+            self._rollback("non-finite loss")
+            return None
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self._mask_density_gradients()
+        params = [p for g in self.optimizer.param_groups for p in g["params"]
+                  if p.grad is not None]
+        grad_norm = torch.nn.utils.clip_grad_norm_(params, float("inf"))
+        if not bool(torch.isfinite(grad_norm)):
+            self._rollback("non-finite gradient")
+            return None
+        self.optimizer.step()
+        return loss, batch_mse
 
     def _append_log(self, loss: float, batch_mse: float, test: float | None) -> None:
         row = {"step": self.step, "wall_time_s": round(self.elapsed_s, 3), "loss": loss,

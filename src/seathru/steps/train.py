@@ -227,6 +227,18 @@ def water_report(model, scale: float, directions=None) -> dict:
 def run(args: argparse.Namespace) -> None:
     import torch
 
+    # exp(-large) underflows to denormals, 10x slower on CPU; the flag is process-wide, so it
+    # is switched off again for whoever calls this step in-process (tests, notebooks).
+    torch.set_flush_denormal(True)
+    try:
+        _train(args)
+    finally:
+        torch.set_flush_denormal(False)
+
+
+def _train(args: argparse.Namespace) -> None:
+    import torch
+
     from seathru.core.model import SeaThruModel, build_scene
     from seathru.core.rays import RayDataset
     from seathru.core.training import TrainCallbacks, Trainer
@@ -234,7 +246,6 @@ def run(args: argparse.Namespace) -> None:
     config = build_config(args)
     if args.threads:
         torch.set_num_threads(args.threads)
-    torch.set_flush_denormal(True)  # exp(-large) underflows to denormals: 10x slower on CPU
     device = _device(args.device)
     torch.manual_seed(config.seed)
     np.random.seed(config.seed)
@@ -259,7 +270,8 @@ def run(args: argparse.Namespace) -> None:
     else:
         log.warning("%s: no test frames; the log has no held-out PSNR", args.cameras)
     rgb = data.rays.rgb
-    high = float(torch.quantile(rgb[torch.randperm(len(rgb))[:200000]].float(), 0.999))
+    high = float(torch.quantile(rgb[torch.randperm(len(rgb))[:200000].to(rgb.device)].float(),
+                                0.999))
     config.colour_max = max(config.colour_max, round(2.0 * high, 3))
     scene = build_scene(train_frames, cameras.near, cameras.far, cameras.centre, cameras.scale,
                         rgb.mean(0).tolist())

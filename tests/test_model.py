@@ -1,0 +1,382 @@
+"""Unit tests of the model's parts: rays, contraction, sampler, losses, medium, model, inference."""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from seathru.core.fields import contract, grid_vertices, uncontract
+from seathru.core.inference import render_frame
+from seathru.core.losses import (distortion_loss, reconstruction_loss, total_variation_3d,
+                                 transmittance_prior)
+from seathru.core.medium import Medium
+from seathru.core.model import ModelConfig, SeaThruModel
+from seathru.core.rays import (RayDataset, covisible_box, frame_rays,
+                               ray_box_intersect, view_counts)
+from seathru.core.rendering import nerf_weights
+from seathru.core.sampler import (candidate_edges, lookup_nearest, merge_edges,
+                                  normalised_distance, occupancy_weights, sample_pdf,
+                                  stratified_edges)
+from seathru.io.cameras import Frame
+
+torch.set_num_threads(1)
+SMALL = dict(density_res=[16, 20, 24], plane_res=[16, 24, 32], plane_coarse_res=8,
+             density_coarse_res=8, plane_channels=4, decoder_hidden=8, candidates_linear=16,
+             candidates_disparity=4, samples_per_ray=8, medium="global", eval_rays=64)
+
+
+def rotation(a: float, b: float, c: float) -> np.ndarray:
+    ca, sa, cb, sb, cc, sc = math.cos(a), math.sin(a), math.cos(b), math.sin(b), math.cos(c), \
+        math.sin(c)
+    rz = np.array([[ca, -sa, 0], [sa, ca, 0], [0, 0, 1]])
+    ry = np.array([[cb, 0, sb], [0, 1, 0], [-sb, 0, cb]])
+    rx = np.array([[1, 0, 0], [0, cc, -sc], [0, sc, cc]])
+    return rz @ ry @ rx
+
+
+def make_frame(rot=(0.3, -0.2, 0.1), centre=(0.5, -1.0, 2.0), width=12, height=8, fx=10.0,
+               fy=11.0, cx=6.2, cy=3.9, near=0.5, far=6.0, split="train", name="f") -> Frame:
+    c2w = np.eye(4)
+    c2w[:3, :3] = rotation(*rot)
+    c2w[:3, 3] = centre
+    return Frame(name=name, image=f"{name}.tiff", width=width, height=height, fx=fx, fy=fy,
+                 cx=cx, cy=cy, c2w=c2w.tolist(), near=near, far=far, split=split)
+
+
+def look_at_frame(position, target=(0.0, 0.0, 0.0), name="f", **kw) -> Frame:
+    position, target = np.asarray(position, float), np.asarray(target, float)
+    forward = target - position
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.stack([right, down, forward], axis=1)
+    c2w[:3, 3] = position
+    frame = make_frame(name=name, **kw)
+    frame.c2w = c2w.tolist()
+    return frame
+
+
+# ---------------------------------------------------------------------------------------- rays
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-3, 3), st.floats(-1.4, 1.4), st.floats(-3, 3), st.integers(0, 11),
+       st.integers(0, 7), st.floats(0.3, 7.0), st.sampled_from([1, 2]))
+def test_pixel_ray_passes_through_the_point_that_projects_to_its_centre(a, b, c, u, v, t, down):
+    frame = make_frame(rot=(a, b, c))
+    origins, dirs = frame_rays(frame, downscale=down)
+    w = frame.width // down
+    if u >= w or v >= frame.height // down:
+        return
+    index = v * w + u
+    point = origins[index].double().numpy() + t * dirs[index].double().numpy()
+    # project with the float64 pinhole model: the point lands on the pixel's centre
+    w2c = np.linalg.inv(frame.c2w_array)
+    cam = w2c[:3, :3] @ point + w2c[:3, 3]
+    assert cam[2] > 0
+    assert cam[0] / cam[2] * frame.fx + frame.cx == pytest.approx((u + 0.5) * down, abs=1e-4)
+    assert cam[1] / cam[2] * frame.fy + frame.cy == pytest.approx((v + 0.5) * down, abs=1e-4)
+    assert float(torch.linalg.norm(dirs[index])) == pytest.approx(1.0, abs=1e-6)
+    assert np.allclose(origins[index].numpy(), frame.c2w_array[:3, 3], atol=1e-6)
+
+
+def test_rays_are_row_major_and_follow_opencv_axes():
+    frame = make_frame(rot=(0, 0, 0), centre=(0, 0, 0), width=4, height=3, fx=2, fy=2, cx=2,
+                       cy=1.5)
+    _, dirs = frame_rays(frame)
+    grid = dirs.reshape(3, 4, 3)
+    assert torch.all(grid[:, 1:, 0] > grid[:, :-1, 0])   # x grows to the right (columns)
+    assert torch.all(grid[1:, :, 1] > grid[:-1, :, 1])   # y grows downwards (rows)
+    assert torch.all(grid[..., 2] > 0)                   # looking along +z
+    assert dirs.shape == (12, 3)
+
+
+def test_ray_box_intersection_hits_the_faces():
+    origins = torch.tensor([[0.0, 0.0, -5.0], [0.2, 0.1, 0.0], [5.0, 5.0, 5.0]])
+    dirs = torch.nn.functional.normalize(torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.5, 0.2],
+                                                       [1.0, 0.0, 0.0]]), dim=-1)
+    lo, hi = torch.tensor([-1.0, -1.0, -1.0]), torch.tensor([1.0, 1.0, 1.0])
+    t_in, t_out = ray_box_intersect(origins, dirs, lo, hi)
+    assert t_in[0] == pytest.approx(4.0) and t_out[0] == pytest.approx(6.0)
+    exit_point = origins[1] + dirs[1] * t_out[1]
+    assert float(exit_point.abs().max()) == pytest.approx(1.0, abs=1e-6)
+    assert t_in[1] < 0 < t_out[1]          # origin inside
+    assert t_in[2] > t_out[2]              # miss
+
+
+def test_covisible_box_contains_cameras_and_the_looked_at_centre():
+    frames = [look_at_frame((3 * math.cos(k), 3 * math.sin(k), 2.0), name=f"c{k}", near=1.0,
+                            far=8.0) for k in np.linspace(0, 2 * math.pi, 8, endpoint=False)]
+    lo, hi = covisible_box(frames)
+    centres = np.array([f.c2w_array[:3, 3] for f in frames])
+    assert np.all(centres >= lo) and np.all(centres <= hi)
+    assert np.all(lo < 0) and np.all(hi > 0)
+    counts = view_counts(np.zeros((1, 3)), frames)
+    assert counts[0] == len(frames)
+
+
+def test_ray_dataset_drops_masked_and_nonfinite_pixels():
+    frame = make_frame(width=4, height=3)
+    image = np.full((3, 4, 3), 0.5, np.float32)
+    image[0, 0] = np.nan
+    mask = np.ones((3, 4), bool)
+    mask[2, 3] = False
+    data = RayDataset([frame], [image], [mask])
+    assert len(data) == 10 and data.dropped_nonfinite == 1
+    batch = data.sample(5, torch.Generator().manual_seed(0))
+    assert batch.rgb.shape == (5, 3) and torch.all(batch.near == frame.near)
+    held = data.hold_out(3, seed=0)
+    assert len(held) == 3 and len(data) == 7
+    remaining = {tuple(d.tolist()) for d in data.rays.directions}
+    assert not any(tuple(d.tolist()) in remaining for d in held.directions)
+
+
+# ---------------------------------------------------------------------------------- contraction
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(-50, 50), min_size=3, max_size=3))
+def test_contraction_is_bounded_and_invertible(values):
+    u = torch.tensor([values], dtype=torch.float64)
+    v = contract(u)
+    assert float(v.abs().max()) < 2.0
+    if float(u.abs().max()) <= 1.0:
+        assert torch.allclose(v, u)
+    assert torch.allclose(uncontract(v), u, rtol=1e-6, atol=1e-6)
+
+
+def test_grid_vertices_map_back_to_grid_coordinates():
+    model = SeaThruModel(ModelConfig(**SMALL), scene_dict())
+    dims = [5, 4, 3]
+    points = grid_vertices(model.box, dims).reshape(-1, 3)
+    g = model.box.to_grid(points)
+    expected = torch.stack(torch.meshgrid(torch.linspace(-1, 1, 3), torch.linspace(-1, 1, 4),
+                                          torch.linspace(-1, 1, 5), indexing="ij")[::-1], -1)
+    inner = expected.reshape(-1, 3).abs().amax(-1) < 0.99
+    assert torch.allclose(g[inner], expected.reshape(-1, 3)[inner], atol=1e-5)
+
+
+# -------------------------------------------------------------------------------------- sampler
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000), st.integers(1, 24), st.floats(0.0, 1.0))
+def test_sample_pdf_gives_sorted_contiguous_intervals_inside_the_bounds(seed, samples, mix):
+    gen = torch.Generator().manual_seed(seed)
+    rays = 6
+    near = torch.rand(rays, generator=gen) + 0.1
+    far = near + torch.rand(rays, generator=gen) * 20 + 0.01
+    split = near + (far - near) * torch.rand(rays, generator=gen)
+    edges = candidate_edges(near, far, split, 12, 4)
+    assert torch.all(edges[:, 1:] >= edges[:, :-1])
+    assert torch.allclose(edges[:, 0], near) and torch.allclose(edges[:, -1], far)
+    weights = torch.rand(rays, 16, generator=gen) ** 4
+    weights[0] = 0.0  # a ray with no weight at all
+    jitter = torch.rand(rays, samples - 1, generator=gen) if samples > 1 else None
+    t = sample_pdf(edges, weights, samples, mix, jitter)
+    assert t.shape == (rays, samples + 1)
+    assert torch.all(t[:, 1:] >= t[:, :-1])
+    assert torch.equal(t[:, 0], edges[:, 0]) and torch.equal(t[:, -1], edges[:, -1])
+    s = normalised_distance(t, near, far, split, 0.75)
+    assert float(s.min()) >= 0.0 and float(s.max()) <= 1.0
+
+
+def test_sample_pdf_concentrates_samples_where_the_weight_is():
+    edges = torch.linspace(1.0, 9.0, 33)[None]
+    weights = torch.zeros(1, 32)
+    weights[0, 20] = 1.0
+    t = sample_pdf(edges, weights, 16, 0.1, None)
+    mids = 0.5 * (t[0, 1:] + t[0, :-1])
+    inside = ((mids >= edges[0, 20]) & (mids <= edges[0, 21])).sum()
+    assert int(inside) >= 12
+
+
+def test_stratified_and_merged_edges_stay_sorted():
+    gen = torch.Generator().manual_seed(1)
+    edges = candidate_edges(torch.ones(4), torch.full((4,), 10.0), torch.full((4,), 5.0), 8, 4)
+    jittered = stratified_edges(edges, torch.rand(4, 11, generator=gen))
+    assert torch.all(jittered[:, 1:] >= jittered[:, :-1])
+    merged = merge_edges(jittered, sample_pdf(jittered, torch.rand(4, 12, generator=gen), 6,
+                                              0.0, None))
+    assert merged.shape == (4, 13 + 7 - 2) and torch.all(merged[:, 1:] >= merged[:, :-1])
+
+
+def test_occupancy_weights_match_nerf_weights_in_float64():
+    gen = torch.Generator().manual_seed(2)
+    sigma = torch.rand(5, 9, generator=gen, dtype=torch.float64) * 3
+    edges = torch.cumsum(torch.rand(5, 10, generator=gen, dtype=torch.float64), -1)
+    reference, _ = nerf_weights(sigma, edges[:, 1:] - edges[:, :-1])
+    assert torch.allclose(occupancy_weights(edges, sigma), reference, atol=1e-12)
+
+
+def test_nearest_lookup_matches_grid_sample_nearest():
+    gen = torch.Generator().manual_seed(3)
+    volume = torch.rand(1, 1, 5, 6, 7, generator=gen)
+    g = torch.rand(100, 3, generator=gen) * 2 - 1
+    expected = torch.nn.functional.grid_sample(volume, g.reshape(1, -1, 1, 1, 3), mode="nearest",
+                                               align_corners=True).reshape(-1)
+    assert torch.allclose(lookup_nearest(volume, g), expected)
+
+
+# --------------------------------------------------------------------------------------- losses
+
+def test_transmittance_prior_is_minimal_at_zero_and_one():
+    t = torch.linspace(0, 1, 101)
+    values = torch.stack([transmittance_prior(x[None]) for x in t])
+    assert float(values[0]) == pytest.approx(0.0, abs=1e-6)
+    assert float(values[-1]) == pytest.approx(0.0, abs=1e-6)
+    assert torch.all(values[1:-1] > 1e-3)
+    assert int(values.argmax()) == 50
+    assert torch.allclose(values, values.flip(0), atol=1e-5)
+
+
+def test_reconstruction_loss_matches_a_float64_reference_and_its_gradient():
+    gen = torch.Generator().manual_seed(4)
+    pred = (torch.rand(7, 3, generator=gen, dtype=torch.float64) + 0.01).requires_grad_()
+    target = torch.rand(7, 3, generator=gen, dtype=torch.float64)
+    loss = reconstruction_loss(pred, target, 1e-3)
+    p, tg = pred.detach().numpy(), target.numpy()
+    assert float(loss.detach()) == pytest.approx(float(np.mean(((p - tg) / (p + 1e-3)) ** 2)), rel=1e-12)
+    loss.backward()
+    expected = 2 * (p - tg) / (p + 1e-3) ** 2 / p.size  # the denominator is stop-gradient
+    assert np.allclose(pred.grad.numpy(), expected, rtol=1e-10)
+    assert float(reconstruction_loss(target, target)) == 0.0
+    mask = torch.tensor([1, 0, 1, 1, 0, 1, 1], dtype=torch.bool)
+    masked = reconstruction_loss(pred.detach(), target, 1e-3, mask)
+    assert float(masked) == pytest.approx(float(reconstruction_loss(pred.detach()[mask],
+                                                                    target[mask], 1e-3)))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.integers(1, 12))
+def test_distortion_loss_matches_the_quadratic_definition(seed, samples):
+    gen = torch.Generator().manual_seed(seed)
+    w = torch.rand(3, samples, generator=gen, dtype=torch.float64)
+    s = torch.cumsum(torch.rand(3, samples + 1, generator=gen, dtype=torch.float64), -1)
+    mids = 0.5 * (s[:, 1:] + s[:, :-1])
+    reference = (w[:, :, None] * w[:, None, :] * (mids[:, :, None] - mids[:, None, :]).abs()
+                 ).sum((1, 2)) + (w ** 2 * (s[:, 1:] - s[:, :-1])).sum(-1) / 3
+    assert float(distortion_loss(w, s)) == pytest.approx(float(reference.mean()), rel=1e-10)
+
+
+def test_total_variation_is_zero_for_constant_and_positive_otherwise():
+    assert float(total_variation_3d(torch.ones(1, 1, 4, 5, 6), None)) == 0.0
+    gen = torch.Generator().manual_seed(0)
+    vol = torch.rand(1, 1, 4, 5, 6, generator=gen)
+    assert float(total_variation_3d(vol, None)) > 0
+    assert float(total_variation_3d(vol, 50, gen)) > 0
+
+
+# ------------------------------------------------------------------------------- medium, model
+
+def test_medium_modes():
+    medium = Medium("global", 0.3, (0.1, 0.2, 0.3))
+    dirs = torch.nn.functional.normalize(torch.randn(10, 3), dim=-1)
+    attn, bs, colour = medium(dirs)
+    assert torch.allclose(attn, torch.full_like(attn, 0.3), atol=1e-5)
+    assert torch.allclose(colour[0], torch.tensor([0.1, 0.2, 0.3]), atol=1e-4)
+    medium.set_mode("view")
+    attn_v, _, colour_v = medium(dirs)  # starts at the global values
+    assert torch.allclose(attn_v, attn) and torch.allclose(colour_v, colour)
+    medium.set_mode("off")
+    assert all(float(x.abs().max()) == 0.0 for x in medium(dirs))
+    with pytest.raises(ValueError):
+        medium.set_mode("soup")
+
+
+def scene_dict() -> dict:
+    return {"box_min": [-1.0, -1.0, -0.5], "box_max": [1.0, 1.0, 1.0], "near": 0.5, "far": 6.0,
+            "typical_range": 2.5, "normalisation": {"centre": [0.0, 0.0, 0.0], "scale": 1.0},
+            "c_med_init": [0.1, 0.2, 0.3]}
+
+
+def random_rays(count=32, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    origins = torch.tensor([0.0, -2.5, 0.8]) + 0.1 * torch.randn(count, 3, generator=gen)
+    dirs = torch.nn.functional.normalize(torch.tensor([0.0, 1.0, -0.3])
+                                         + 0.3 * torch.randn(count, 3, generator=gen), dim=-1)
+    return origins, dirs, torch.full((count,), 0.5), torch.full((count,), 6.0)
+
+
+def test_medium_off_renders_plain_nerf_exactly():
+    model = SeaThruModel(ModelConfig(**{**SMALL, "medium": "off"}), scene_dict())
+    with torch.no_grad():
+        model.field.density.coarse.fill_(0.5)
+        out = model(*random_rays()).render
+    assert torch.equal(out.rgb, out.restored)
+    assert float(out.backscatter.abs().max()) == 0.0
+    assert float(out.opacity.min()) > 0.1
+
+
+def test_model_survives_a_weights_only_round_trip():
+    model = SeaThruModel(ModelConfig(**SMALL), scene_dict())
+    with torch.no_grad():
+        for p in model.field.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    model.set_stage(2)  # grids of another shape than a fresh model has
+    buffer = io.BytesIO()
+    torch.save(model.export(), buffer)
+    buffer.seek(0)
+    loaded = SeaThruModel.from_checkpoint(torch.load(buffer, weights_only=True))
+    model.eval()
+    rays = random_rays()
+    with torch.no_grad():
+        a, b = model(*rays).render, loaded(*rays).render
+    assert torch.equal(a.rgb, b.rgb) and torch.equal(a.depth_mean, b.depth_mean)
+    assert loaded.water_parameters() == model.water_parameters()
+
+
+def test_upsampling_the_grids_keeps_the_rendering():
+    model = SeaThruModel(ModelConfig(**SMALL), scene_dict())
+    with torch.no_grad():
+        model.field.density.raw.add_(torch.randn_like(model.field.density.raw).mul_(0.3))
+    model.eval()
+    rays = random_rays(64)
+    with torch.no_grad():
+        before = model(*rays).render.rgb
+        model.set_stage(1)
+        after = model(*rays).render.rgb
+    assert model.field.density.raw.shape[-1] > 16
+    assert float((before - after).abs().max()) < 0.05
+
+
+def test_water_parameters_view_mode_reports_range():
+    model = SeaThruModel(ModelConfig(**{**SMALL, "medium": "view"}), scene_dict())
+    with torch.no_grad():
+        model.medium.view_net[-1].weight.normal_(0, 0.5)
+    water = model.water_parameters(torch.nn.functional.normalize(torch.randn(50, 3), dim=-1))
+    assert water["mode"] == "view"
+    for key in ("sigma_attn", "sigma_bs", "c_med"):
+        assert all(lo <= m <= hi for lo, m, hi in zip(water["min"][key], water[key],
+                                                      water["max"][key]))
+
+
+def test_render_frame_shapes_and_chunk_invariance():
+    model = SeaThruModel(ModelConfig(**SMALL), scene_dict())
+    frame = look_at_frame((0.0, -2.5, 0.8), target=(0.0, 0.0, 0.2), width=10, height=6,
+                          fx=8, fy=8, cx=5, cy=3, near=0.5, far=6.0)
+    full = render_frame(model, frame, chunk=7)
+    big = render_frame(model, frame, chunk=8192)
+    assert full["rgb"].shape == (6, 10, 3) and full["depth"].shape == (6, 10)
+    assert set(full) == {"rgb", "restored", "direct", "backscatter", "depth", "opacity"}
+    for key in full:
+        assert full[key].dtype == np.float32
+        assert np.allclose(full[key], big[key], atol=1e-6)
+    half = render_frame(model, frame, downscale=2)
+    assert half["rgb"].shape == (3, 5, 3)
+    assert np.allclose(full["rgb"], full["direct"] + full["backscatter"], atol=1e-6)
+
+
+def test_config_round_trip_and_validation():
+    config = ModelConfig(steps=10, medium="off")
+    assert ModelConfig.from_dict(config.to_dict()) == config
+    assert "max_minutes" not in config.identity()
+    with pytest.raises(ValueError):
+        ModelConfig(field="mlp", sampler="occupancy").validate()
+    with pytest.raises(ValueError):
+        ModelConfig(medium="soup").validate()
