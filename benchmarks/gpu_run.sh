@@ -6,10 +6,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 minutes="${1:-2}"
+ours_flags="${2:-}"   # e.g. "--batch-rays 4096 --steps 100000"
 out="${OUT:?set OUT to the folder for the results}"
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv || true
 python3 -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"
-python3 benchmarks/bench_rendering.py --throughput-only --out "$out/rendering_gpu.md"
+[ -n "${SKIP_RENDERING:-}" ] || \
+    python3 benchmarks/bench_rendering.py --throughput-only --out "$out/rendering_gpu.md"
 python3 benchmarks/bench_training.py --device cuda --threads 8 --minutes "$minutes" \
-    --work /tmp/bench_training --out "$out/training_gpu.md"
+    --work /tmp/bench_training --out "$out/training_gpu.md" --ours-flags="$ours_flags"
