@@ -21,6 +21,7 @@ import json
 import logging
 import math
 import os
+import sys
 import time
 from dataclasses import fields
 from pathlib import Path
@@ -291,8 +292,10 @@ def _train(args: argparse.Namespace) -> None:
     bar = None
     if not args.no_progress:
         from tqdm import tqdm
-        bar = tqdm(total=config.steps, desc="train", unit="step", mininterval=1.0,
-                   dynamic_ncols=True)
+        # a log file (Snakemake redirects stderr) gets one line every 30 s, a terminal every 1 s
+        interactive = sys.stderr.isatty()
+        bar = tqdm(total=config.steps, desc="train", unit="step", dynamic_ncols=True,
+                   mininterval=1.0 if interactive else 30.0)
 
     def progress(step: int, stats: dict) -> None:
         if bar is not None:
