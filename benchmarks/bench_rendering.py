@@ -34,21 +34,13 @@ import torch
 from seathru.core.rendering import nerf_weights, render_seathru
 from seathru.io.atomic import write_text
 
+from machine import cpu_name
+
 RESULTS = Path(__file__).resolve().parent / "results" / "rendering.md"
 ATTN = (0.40, 0.12, 0.07)    # per metre, red attenuates fastest
 BACKSCATTER = (0.30, 0.18, 0.12)
 WATER = (0.05, 0.25, 0.35)
 NEAR, FAR = 0.2, 8.0
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def synchronize(device: torch.device) -> None:
@@ -249,7 +241,7 @@ def main() -> None:
     devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
     header = [
         "## Rendering benchmark (`benchmarks/bench_rendering.py`)", "",
-        f"- CPU: {cpu_model()}, torch threads: {threads}",
+        f"- CPU: {cpu_name()}, torch threads: {threads}",
         f"- torch {torch.__version__}, Python {platform.python_version()}",
         f"- CUDA: {torch.cuda.get_device_name(0) if torch.cuda.is_available() else 'not available'}",
         "- float32 renderers; references in float64", "",

@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from machine import cpu_name, load_average
+
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results" / "training.md"
 PAPER_FLAGS = ["--medium", "view", "--view-dependent-colour", "--lr", "5e-4",
@@ -51,29 +53,12 @@ PSNR_LEVELS = (20.0, 22.0, 24.0, 25.0, 26.0, 28.0, 30.0)
 NEAR_RANGE_M = 6.0
 
 
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
-
-
 def device_name(device: str) -> str:
     if device.startswith("cuda"):
         import torch
 
         return f"{torch.cuda.get_device_name(0)} (CUDA), host CPU {cpu_name()}"
     return cpu_name()
-
-
-def load_average() -> str:
-    try:
-        return " ".join(Path("/proc/loadavg").read_text().split()[:3])
-    except OSError:
-        return "n/a"
 
 
 def simulate_demo(root: Path) -> Path:
