@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from seathru.cli import build_parser
 from seathru.core.colour import srgb_to_linear
 from seathru.core.geometry import (FAR_MARGIN, NEAR_MARGIN, compare_trajectories,
-                                   denormalise_c2w, depth_bounds, frustum_corners, llff_to_opencv,
+                                   denormalise_c2w, depth_bounds, frustum_corners, range_bounds, llff_to_opencv,
                                    opencv_to_llff, opencv_to_opengl, opengl_to_opencv,
                                    rotation_angle_deg, umeyama, unit_ball_normalisation)
 from seathru.errors import PipelineError
@@ -113,6 +113,30 @@ def test_depth_bounds_are_margined_percentiles_of_points_in_front():
     assert far == pytest.approx(FAR_MARGIN * np.percentile(np.linspace(1, 10, 100001), 99.9))
     with pytest.raises(ValueError):
         depth_bounds(np.array([-1.0, 0.0]))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(0.2, 5.0), st.floats(1.5, 20.0), st.floats(50.0, 800.0),
+       st.integers(0, 2**31 - 1))
+def test_range_bounds_hold_every_pixel_ray_up_to_the_far_depth(near, stretch, focal, seed):
+    rng = np.random.default_rng(seed)
+    width, height = int(rng.integers(16, 640)), int(rng.integers(16, 480))
+    k = np.array([[focal, 0, width * rng.uniform(0.3, 0.7)],
+                  [0, focal * rng.uniform(0.8, 1.2), height * rng.uniform(0.3, 0.7)], [0, 0, 1]])
+    far = near * stretch
+    near_range, far_range = range_bounds(near, far, k, width, height)
+    pixels = np.column_stack([rng.uniform(0, width, 500), rng.uniform(0, height, 500),
+                              np.ones(500)])
+    unit_depth = pixels @ np.linalg.inv(k).T
+    ranges_at_far = far * np.linalg.norm(unit_depth, axis=1)   # range of depth-far points
+    ranges_at_near = near * np.linalg.norm(unit_depth, axis=1)
+    assert near_range == near and np.all(ranges_at_near >= near_range)
+    assert np.all(ranges_at_far <= far_range * (1 + 1e-12))
+    # tight: a corner ray reaches the far range exactly
+    corner = np.array([0.0, 0.0, 1.0]) @ np.linalg.inv(k).T
+    assert far * np.linalg.norm(corner) <= far_range
+    assert far_range == pytest.approx(far * max(np.linalg.norm(np.array([u, v, 1.0]) @ np.linalg.inv(k).T)
+                                                for u in (0, width) for v in (0, height)))
 
 
 @settings(max_examples=30, deadline=None)
@@ -242,7 +266,9 @@ def test_llff_reader_reproduces_poses_bounds(shared_data, fern_ingest, tmp_path)
     assert frame.fx == pytest.approx(focal * 504 / width)
     assert frame.fy == pytest.approx(focal * 378 / height)
     assert (frame.cx, frame.cy) == (252.0, 189.0)
-    bounds = np.array([[f.near / NEAR_MARGIN, f.far / FAR_MARGIN] for f in cameras.frames])
+    # the depth bounds of poses_bounds.npy, as ranges along the rays (far: the corner rays')
+    corner = math.hypot(252.0 / frame.fx, 189.0 / frame.fy, 1.0)
+    bounds = np.array([[f.near / NEAR_MARGIN, f.far / FAR_MARGIN / corner] for f in cameras.frames])
     np.testing.assert_allclose(bounds / cameras.scale, data[:, 15:], rtol=1e-9)
     assert [f.split for f in cameras.frames].count("test") == 3  # images 0, 8, 16
     assert cameras.frames[8].split == "test"
@@ -361,10 +387,12 @@ def test_colmap_outputs_follow_the_camera_contract(fern_colmap):
         assert np.linalg.norm(frame.c2w_array[:3, 3]) <= 1.0
     assert cameras.near == min(f.near for f in cameras.frames)
     assert {f.name for f in cameras.split("test")} == {"image000", "image008", "image016"}
-    # the whole frustum of every camera lies in the unit ball
+    # the whole frustum of every camera (up to its depth bound) lies in the unit ball; far is a
+    # range, reached at that depth by the longest corner ray
     for frame in cameras.frames:
+        _, stretch = range_bounds(1.0, 1.0, frame.intrinsics, frame.width, frame.height)
         corners = frustum_corners(frame.c2w_array, frame.intrinsics, frame.width,
-                                  frame.height, frame.far)
+                                  frame.height, frame.far / stretch)
         assert np.linalg.norm(corners, axis=1).max() <= 1.0 + 1e-9
     report = json.loads((fern_colmap / "report.json").read_text())
     assert report["attempts"][0]["settings"]["matcher"] == "sequential"

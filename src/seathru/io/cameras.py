@@ -15,7 +15,7 @@
          "width": W, "height": H,
          "fx": ..., "fy": ..., "cx": ..., "cy": ...,   # pinhole, pixels
          "c2w": [[...4], [...4], [...4], [0, 0, 0, 1]],
-         "near": float, "far": float,      # per-frame bounds, normalised units
+         "near": float, "far": float,      # per-frame bounds on the range, normalised units
          "split": "train" | "test"}
       ]
     }
@@ -23,6 +23,9 @@
 Conventions:
 - camera axes are OpenCV/COLMAP: x right, y down, z forward (looking along +z);
 - ``c2w`` maps camera coordinates to normalised world coordinates;
+- a frame's ``near`` / ``far`` bound the range (distance from the camera centre along each
+  pixel's ray, the ``t`` of the rendering equation), not the depth along the optical axis:
+  readers of LLFF-style depth bounds convert them (``seathru.core.geometry.range_bounds``);
 - the centre of pixel (u, v) (column, row) is at (u + 0.5, v + 0.5);
 - normalised world = (source world - centre) * scale, so a distance d in source units is
   d * scale in normalised units and a coefficient sigma fitted in normalised units is

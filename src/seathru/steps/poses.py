@@ -41,7 +41,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from seathru.core.geometry import normalise_c2w, unit_ball_normalisation
+from seathru.core.geometry import normalise_c2w, range_bounds, unit_ball_normalisation
 from seathru.errors import PipelineError
 from seathru.io.atomic import atomic_dir, write_json
 from seathru.io.cameras import CameraSet, Frame, every_nth_split, write_cameras
@@ -78,8 +78,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                          "(default: linear; e.g. linear_4 for a downscaled copy)")
     io.add_argument("--test-every", type=int, default=8,
                     help="every N-th image in sorted name order is a test image (0: none)")
-    io.add_argument("--near", type=float, help="override every near bound (source units)")
-    io.add_argument("--far", type=float, help="override every far bound (source units)")
+    io.add_argument("--near", type=float,
+                    help="override every near bound: depth along the optical axis, source units")
+    io.add_argument("--far", type=float,
+                    help="override every far bound: depth along the optical axis, source units "
+                         "(cameras.json stores it as the range of the longest corner ray)")
 
     sfm = parser.add_argument_group("COLMAP (--source colmap)")
     sfm.add_argument("--camera-model", choices=CAMERA_MODELS, default="SIMPLE_RADIAL")
@@ -461,11 +464,13 @@ def write_outputs(dataset: PosedDataset, ingest: IngestFolder, out: Path, args) 
         raise PipelineError(f"cannot normalise the scene: {exc}") from None
     normalised = normalise_c2w(c2w, centre, scale)
     split = every_nth_split([v.name for v, _ in records], args.test_every)
-    frames = [Frame(name=view.name, image=f"images/{view.name}.tiff", mask=f"masks/{view.name}.png",
-                    width=warp.width, height=warp.height, fx=warp.fx, fy=warp.fy, cx=warp.cx,
-                    cy=warp.cy, c2w=pose.tolist(), near=view.near * scale,
-                    far=view.far * scale, split=split[view.name])
-              for (view, warp), pose in zip(records, normalised)]
+    frames = []
+    for (view, warp), pose, k in zip(records, normalised, intrinsics):
+        near, far = range_bounds(view.near, view.far, k, warp.width, warp.height)
+        frames.append(Frame(name=view.name, image=f"images/{view.name}.tiff",
+                            mask=f"masks/{view.name}.png", width=warp.width, height=warp.height,
+                            fx=warp.fx, fy=warp.fy, cx=warp.cx, cy=warp.cy, c2w=pose.tolist(),
+                            near=near * scale, far=far * scale, split=split[view.name]))
     cameras = CameraSet(frames=frames, near=min(f.near for f in frames),
                         far=max(f.far for f in frames), centre=centre.tolist(), scale=scale,
                         source=dataset.source)
