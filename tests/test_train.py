@@ -213,3 +213,19 @@ def test_clear_water_switches_the_medium_off(clear_scene, tmp_path):
     assert water["mode"] == "off" and max(water["sigma_bs"]) == 0.0
     assert np.array_equal(rendered["restored"], rendered["rgb"])
     assert float(np.abs(rendered["backscatter"]).max()) == 0.0
+
+
+def test_batch_size_defaults_per_device_and_an_explicit_value_wins():
+    import argparse
+
+    from seathru.steps import train as train_step
+
+    parser = argparse.ArgumentParser()
+    train_step.add_arguments(parser)
+    required = ["--cameras", "c.json", "--out", "o"]
+    default = parser.parse_args(required)
+    assert train_step.build_config(default, "cpu").batch_rays == ModelConfig.batch_rays
+    assert train_step.build_config(default, "cuda").batch_rays == train_step.GPU_BATCH_RAYS
+    explicit = parser.parse_args([*required, "--batch-rays", "2048"])
+    assert train_step.build_config(explicit, "cuda").batch_rays == 2048
+    assert train_step.build_config(explicit, "cpu").batch_rays == 2048
