@@ -18,6 +18,7 @@ from seathru.core import display, metrics
 from seathru.core.camera_path import (capture_order, interpolate_poses, key_poses,
                                       smooth_camera_path)
 from seathru.core.colour import linear_to_srgb
+from seathru.core.scene import look_at
 
 # ------------------------------------------------------------------------------------ PSNR, SSIM
 
@@ -328,14 +329,7 @@ def _orbit(n: int, radius: float = 2.0, jitter: float = 0.0, seed: int = 0) -> n
     for angle in np.linspace(0, 1.5 * np.pi, n):
         centre = np.array([radius * np.cos(angle), radius * np.sin(angle), 0.5])
         centre = centre + rng.normal(0, jitter, 3)
-        forward = -centre / np.linalg.norm(centre)
-        right = np.cross(forward, [0, 0, 1.0])
-        right /= np.linalg.norm(right)
-        down = np.cross(forward, right)
-        pose = np.eye(4)
-        pose[:3, :3] = np.stack([right, down, forward], axis=1)
-        pose[:3, 3] = centre
-        poses.append(pose)
+        poses.append(look_at(centre, np.zeros(3)))
     return np.stack(poses)
 
 

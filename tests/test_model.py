@@ -23,6 +23,7 @@ from seathru.core.rendering import nerf_weights
 from seathru.core.sampler import (candidate_edges, lookup_nearest, merge_edges,
                                   normalised_distance, occupancy_weights, sample_pdf,
                                   stratified_edges)
+from seathru.core.scene import look_at
 from seathru.io.cameras import Frame
 
 torch.set_num_threads(1)
@@ -50,17 +51,8 @@ def make_frame(rot=(0.3, -0.2, 0.1), centre=(0.5, -1.0, 2.0), width=12, height=8
 
 
 def look_at_frame(position, target=(0.0, 0.0, 0.0), name="f", **kw) -> Frame:
-    position, target = np.asarray(position, float), np.asarray(target, float)
-    forward = target - position
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([right, down, forward], axis=1)
-    c2w[:3, 3] = position
     frame = make_frame(name=name, **kw)
-    frame.c2w = c2w.tolist()
+    frame.c2w = look_at(position, target).tolist()
     return frame
 
 

@@ -22,6 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from seathru.cli import main
 from seathru.core import display
+from seathru.core.scene import look_at
 from seathru.io.cameras import CameraSet, Frame, read_cameras, write_cameras
 from seathru.io.images import read_image, write_float_tiff
 from seathru.steps.render import count_video_frames, render_dataset
@@ -35,16 +36,6 @@ METRES_PER_UNIT = 1.0 / (SOURCE_PER_METRE * NORMALISATION_SCALE)
 WIDTH, HEIGHT = 48, 36
 RENDER_SETTINGS = dict(downscale=1, path_downscale=1, path_frames=12, fps=8.0,
                        exposure_percentile=99.0, exposure_target=0.9, depth_cmap="turbo")
-
-
-def _look_at(centre: np.ndarray, target: np.ndarray) -> np.ndarray:
-    forward = (target - centre) / np.linalg.norm(target - centre)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
-    pose[:3, 3] = centre
-    return pose
 
 
 def make_fake_dataset(root: Path, views: int = 8, test_every: int = 4, seed: int = 0,
@@ -66,7 +57,7 @@ def make_fake_dataset(root: Path, views: int = 8, test_every: int = 4, seed: int
     for i in range(views):
         name = f"dive_{i:03d}"
         angle = 2 * np.pi * i / views
-        pose_m = _look_at(np.array([3 * np.cos(angle), 3 * np.sin(angle), 1.5]), np.zeros(3))
+        pose_m = look_at(np.array([3 * np.cos(angle), 3 * np.sin(angle), 1.5]), np.zeros(3))
         split = "test" if i % test_every == 0 else "train"
         common = dict(name=name, width=WIDTH, height=HEIGHT, fx=35.0, fy=35.0, cx=WIDTH / 2,
                       cy=HEIGHT / 2, split=split)
