@@ -121,6 +121,7 @@ def evaluate(run: dict, truth: Path, pixels: int, seed: int, threads: int,
     import torch
 
     from seathru.core.inference import render_rays
+    from seathru.core.metrics import psnr
     from seathru.core.model import SeaThruModel
     from seathru.core.rays import frame_rays
     from seathru.io.cameras import read_cameras
@@ -152,9 +153,6 @@ def evaluate(run: dict, truth: Path, pixels: int, seed: int, threads: int,
     rgb, restored = out["rgb"].numpy(), out["restored"].numpy()
     finite = np.isfinite(clean).all(-1) & np.isfinite(depth)
     near_mask = finite & (depth < NEAR_RANGE_M)
-
-    def psnr(a, b):
-        return float(-10 * np.log10(np.mean((a - b) ** 2)))
 
     return {"pixels": len(water), "render_s": seconds,
             "psnr_full": psnr(rgb, water),
@@ -222,8 +220,7 @@ def main() -> None:
         f"Device: {device_name(args.device)}, {args.threads} CPU thread(s) requested (ours "
         f"picks 1 or {args.threads} by measuring on CPU), torch {torch.__version__}, "
         f"Python {platform.python_version()}"
-        f"; load average before/after: {load_before} / {load_after} (a shared machine: other "
-        "jobs ran at the same time). Scene: "
+        f"; load average before/after: {load_before} / {load_after}. Scene: "
         f"`{sim}` (demo dive: 24 views 320x240 orbit, default water, 21 train / 3 test views). "
         f"Each model trained {args.minutes} min of training time (log evaluations excluded), one "
         "after the other, written by `benchmarks/bench_training.py`"

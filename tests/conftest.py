@@ -22,16 +22,3 @@ def shared_data() -> Path:
 def repo_root() -> Path:
     return REPO_ROOT
 
-
-@pytest.fixture(autouse=True)
-def _denormals_kept():
-    """Each test starts with IEEE denormals, whatever an in-process step set before it.
-
-    The train step flushes denormals to zero for speed; a leak into later tests makes
-    hypothesis refuse its float strategies, so the state is pinned per test.
-    """
-    import torch
-
-    torch.set_flush_denormal(False)
-    yield
-    torch.set_flush_denormal(False)

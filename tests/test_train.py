@@ -19,6 +19,7 @@ import torch
 
 from seathru.cli import main as cli_main
 from seathru.core.inference import render_frame
+from seathru.core.metrics import psnr
 from seathru.core.model import ModelConfig, SeaThruModel, build_scene
 from seathru.core.rays import RayDataset
 from seathru.core.training import TrainCallbacks, Trainer
@@ -67,10 +68,6 @@ def _read_log(path: Path) -> list[dict]:
         return list(csv.DictReader(fh))
 
 
-def _psnr(a: np.ndarray, b: np.ndarray) -> float:
-    return -10.0 * math.log10(float(np.mean((a - b) ** 2)))
-
-
 @pytest.mark.slow
 def test_training_learns_the_scene_and_the_water(default_scene, tmp_path):
     _train_cli(default_scene / "cameras.json", tmp_path, "--steps", "700", "--batch-rays",
@@ -88,7 +85,8 @@ def test_training_learns_the_scene_and_the_water(default_scene, tmp_path):
     train_mean = np.mean([read_image(cameras.image_path(f)).reshape(-1, 3).mean(0)
                           for f in cameras.split("train")], axis=0)
     test_images = [read_image(cameras.image_path(f)) for f in cameras.split("test")]
-    baseline = _psnr(np.stack(test_images), train_mean)
+    test_stack = np.stack(test_images)
+    baseline = psnr(np.broadcast_to(train_mean, test_stack.shape), test_stack)
     assert tested[-1] > baseline + 3.0, (tested[-1], baseline)
     assert tested[-1] > tested[0] + 3.0
 
@@ -96,7 +94,7 @@ def test_training_learns_the_scene_and_the_water(default_scene, tmp_path):
     assert checkpoint["format"] == "seathru-model/1"
     model = SeaThruModel.from_checkpoint(checkpoint)
     rendered = [render_frame(model, f)["rgb"] for f in cameras.split("test")]
-    assert _psnr(np.stack(rendered), np.stack(test_images)) > baseline + 2.5
+    assert psnr(np.stack(rendered), test_stack) > baseline + 2.5
 
     selection = json.loads((out / "selection.json").read_text())
     assert selection["chosen"] == "global"
@@ -229,3 +227,18 @@ def test_batch_size_defaults_per_device_and_an_explicit_value_wins():
     explicit = parser.parse_args([*required, "--batch-rays", "2048"])
     assert train_step.build_config(explicit, "cuda").batch_rays == 2048
     assert train_step.build_config(explicit, "cpu").batch_rays == 2048
+
+
+def _denormals_flushed() -> bool:
+    return bool((torch.tensor([1e-40], dtype=torch.float32) * 1.0 == 0).item())
+
+
+def test_train_step_leaves_denormals_as_it_found_them(default_scene, tmp_path):
+    # The step flushes denormals for speed; left on, the flag is process-wide and breaks
+    # in-process callers (hypothesis refuses its float strategies, as in an earlier CI run).
+    torch.set_flush_denormal(True)
+    assert _denormals_flushed()  # the probe sees the flag
+    torch.set_flush_denormal(False)
+    _train_cli(default_scene / "cameras.json", tmp_path, "--steps", "3", "--batch-rays", "64",
+               "--medium", "global")
+    assert not _denormals_flushed()
