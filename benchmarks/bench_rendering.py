@@ -1,4 +1,4 @@
-"""Benchmark of seathru.core.rendering (a script, not a test).
+"""Benchmark of seathru.nerf.rendering (a script, not a test).
 
     python benchmarks/bench_rendering.py [--threads 1] [--quick]
 
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import torch
 
-from seathru.core.rendering import nerf_weights, render_seathru
+from seathru.nerf.rendering import nerf_weights, render_seathru
 from seathru.io.atomic import write_text
 
 from machine import cpu_name

@@ -62,7 +62,7 @@ def device_name(device: str) -> str:
 
 
 def simulate_demo(root: Path) -> Path:
-    from seathru.core.water import water_params
+    from seathru.sim.water import water_params
     from seathru.steps.simulate import SimulationOptions, simulate
 
     out = root / "demo"
@@ -120,10 +120,10 @@ def evaluate(run: dict, truth: Path, pixels: int, seed: int, threads: int,
     """PSNRs on common held-out pixels (the same for every model)."""
     import torch
 
-    from seathru.core.inference import render_rays
-    from seathru.core.metrics import psnr
-    from seathru.core.model import SeaThruModel
-    from seathru.core.rays import frame_rays
+    from seathru.nerf.inference import render_rays
+    from seathru.eval.metrics import psnr
+    from seathru.nerf.model import SeaThruModel
+    from seathru.nerf.rays import frame_rays
     from seathru.io.cameras import read_cameras
     from seathru.io.images import read_image
 

@@ -33,7 +33,7 @@ RESULTS = REPO / "benchmarks" / "results" / "water_fit.md"
 
 
 def load_pixels(truth: Path, per_view: int, seed: int):
-    from seathru.core.rays import frame_rays
+    from seathru.nerf.rays import frame_rays
     from seathru.io.cameras import read_cameras
     from seathru.io.images import read_image
 

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from scipy import ndimage
 from skimage.transform import downscale_local_mean
 
-from seathru.core import linearise
+from seathru.radiometry import linearise
 from seathru.errors import PipelineError
 from seathru.io import raw as rawio
 from seathru.steps import ingest

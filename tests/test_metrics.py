@@ -14,11 +14,12 @@ from numpy.lib.stride_tricks import sliding_window_view
 from scipy.spatial.transform import Rotation
 from skimage.metrics import structural_similarity
 
-from seathru.core import display, metrics
-from seathru.core.camera_path import (capture_order, interpolate_poses, key_poses,
+from seathru.eval import display
+from seathru.eval import metrics
+from seathru.eval.camera_path import (capture_order, interpolate_poses, key_poses,
                                       smooth_camera_path)
-from seathru.core.colour import linear_to_srgb
-from seathru.core.scene import look_at
+from seathru.radiometry.colour import linear_to_srgb
+from seathru.sim.scene import look_at
 
 # ------------------------------------------------------------------------------------ PSNR, SSIM
 

@@ -11,19 +11,19 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seathru.core.fields import contract, grid_vertices, uncontract
-from seathru.core.inference import render_frame
-from seathru.core.losses import (distortion_loss, reconstruction_loss, total_variation_3d,
+from seathru.nerf.fields import contract, grid_vertices, uncontract
+from seathru.nerf.inference import render_frame
+from seathru.nerf.losses import (distortion_loss, reconstruction_loss, total_variation_3d,
                                  transmittance_prior)
-from seathru.core.medium import Medium
-from seathru.core.model import ModelConfig, SeaThruModel
-from seathru.core.rays import (RayDataset, covisible_box, frame_rays,
+from seathru.nerf.medium import Medium
+from seathru.nerf.model import ModelConfig, SeaThruModel
+from seathru.nerf.rays import (RayDataset, covisible_box, frame_rays,
                                ray_box_intersect, view_counts)
-from seathru.core.rendering import nerf_weights
-from seathru.core.sampler import (candidate_edges, lookup_nearest, merge_edges,
+from seathru.nerf.rendering import nerf_weights
+from seathru.nerf.sampler import (candidate_edges, lookup_nearest, merge_edges,
                                   normalised_distance, occupancy_weights, sample_pdf,
                                   stratified_edges)
-from seathru.core.scene import look_at
+from seathru.sim.scene import look_at
 from seathru.io.cameras import Frame
 
 torch.set_num_threads(1)

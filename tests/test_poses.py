@@ -15,8 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seathru.cli import build_parser
-from seathru.core.colour import srgb_to_linear
-from seathru.core.geometry import (FAR_MARGIN, NEAR_MARGIN, compare_trajectories,
+from seathru.radiometry.colour import srgb_to_linear
+from seathru.geometry.poses import (FAR_MARGIN, NEAR_MARGIN, compare_trajectories,
                                    denormalise_c2w, depth_bounds, frustum_corners, range_bounds, llff_to_opencv,
                                    opencv_to_llff, opencv_to_opengl, opengl_to_opencv,
                                    rotation_angle_deg, umeyama, unit_ball_normalisation)

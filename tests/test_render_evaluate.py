@@ -21,8 +21,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from seathru.cli import main
-from seathru.core import display
-from seathru.core.scene import look_at
+from seathru.eval import display
+from seathru.sim.scene import look_at
 from seathru.io.cameras import CameraSet, Frame, read_cameras, write_cameras
 from seathru.io.images import read_image, write_float_tiff
 from seathru.steps.render import count_video_frames, render_dataset
@@ -280,7 +280,7 @@ def _have_model_stack() -> bool:
     import importlib.util
 
     return all(importlib.util.find_spec(name) is not None for name in (
-        "seathru.core.model", "seathru.core.inference", "seathru.steps.train",
+        "seathru.nerf.model", "seathru.nerf.inference", "seathru.steps.train",
         "seathru.steps.simulate"))
 
 
@@ -294,7 +294,7 @@ def make_simulated_poses(root: Path, views: int, width: int, height: int,
     """``seathru simulate``, then a poses-step-like camera file built from the truth: cameras in
     a rotated, shifted, arbitrarily scaled frame (as COLMAP gives) normalised to the unit ball,
     and linear images with a different per-channel gain (as the ingest step gives)."""
-    from seathru.core import geometry
+    from seathru.geometry import poses as geometry
 
     simulate = root / "simulate"
     assert main(["simulate", "--out", str(simulate), "--views", str(views), "--width",

@@ -1,4 +1,4 @@
-"""Tests for seathru.core.rendering against independent float64 references.
+"""Tests for seathru.nerf.rendering against independent float64 references.
 
 The references here never reuse the module's closed forms: the continuous integrals are evaluated
 by composite Gauss-Legendre quadrature (16 nodes per piece) on sub-pieces graded geometrically
@@ -17,7 +17,7 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from seathru.core.rendering import (
+from seathru.nerf.rendering import (
     RayRender,
     nerf_weights,
     one_minus_exp_over,

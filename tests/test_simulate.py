@@ -15,9 +15,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seathru.cli import main as cli_main
-from seathru.core import scene as scene_mod
-from seathru.core import sensor as sensor_mod
-from seathru.core.water import PRESETS, WaterParams, water_image, water_params
+from seathru.sim import scene as scene_mod
+from seathru.sim import sensor as sensor_mod
+from seathru.sim.water import PRESETS, WaterParams, water_image, water_params
 from seathru.io.cameras import read_cameras
 from seathru.io.dng import decode_linear, read_dng_metadata
 from seathru.steps.simulate import SimulationOptions, simulate

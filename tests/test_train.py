@@ -18,11 +18,11 @@ import pytest
 import torch
 
 from seathru.cli import main as cli_main
-from seathru.core.inference import render_frame
-from seathru.core.metrics import psnr
-from seathru.core.model import ModelConfig, SeaThruModel, build_scene
-from seathru.core.rays import RayDataset
-from seathru.core.training import TrainCallbacks, Trainer
+from seathru.nerf.inference import render_frame
+from seathru.eval.metrics import psnr
+from seathru.nerf.model import ModelConfig, SeaThruModel, build_scene
+from seathru.nerf.rays import RayDataset
+from seathru.nerf.training import TrainCallbacks, Trainer
 from seathru.errors import PipelineError
 from seathru.io.cameras import read_cameras
 from seathru.io.images import read_image
@@ -37,7 +37,7 @@ FAST_FLAGS = [arg for key, value in FAST.items() for arg in ("--set", f"{key}={j
 
 
 def _simulate(root: Path, water: str) -> Path:
-    from seathru.core.water import water_params
+    from seathru.sim.water import water_params
     from seathru.steps.simulate import SimulationOptions, simulate
 
     out = root / f"sim_{water}"

@@ -25,7 +25,7 @@ Conventions:
 - ``c2w`` maps camera coordinates to normalised world coordinates;
 - a frame's ``near`` / ``far`` bound the range (distance from the camera centre along each
   pixel's ray, the ``t`` of the rendering equation), not the depth along the optical axis:
-  readers of LLFF-style depth bounds convert them (``seathru.core.geometry.range_bounds``);
+  readers of LLFF-style depth bounds convert them (``seathru.geometry.poses.range_bounds``);
 - the centre of pixel (u, v) (column, row) is at (u + 0.5, v + 0.5);
 - normalised world = (source world - centre) * scale, so a distance d in source units is
   d * scale in normalised units and a coefficient sigma fitted in normalised units is

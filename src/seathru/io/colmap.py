@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 import pycolmap
 
-from seathru.core.geometry import (c2w_from_cam_from_world, compare_trajectories, depth_bounds,
+from seathru.geometry.poses import (c2w_from_cam_from_world, compare_trajectories, depth_bounds,
                                    point_depths)
 from seathru.errors import PipelineError
 

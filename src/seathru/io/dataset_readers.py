@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from seathru.core.geometry import (FAR_MARGIN, NEAR_MARGIN, depth_bounds, llff_to_opencv,
+from seathru.geometry.poses import (FAR_MARGIN, NEAR_MARGIN, depth_bounds, llff_to_opencv,
                                    opengl_to_opencv, point_depths)
 from seathru.errors import PipelineError
 from seathru.io.colmap import make_camera, model_images, read_model

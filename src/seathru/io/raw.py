@@ -11,7 +11,7 @@ demosaiced sensor signal ``(raw - black_c) / (white - black_c)`` per CFA channel
   conversion are done by ingest afterwards, in float, without clipping;
 - LibRaw's demosaic keeps the native sample of every CFA site (all its open-source algorithms:
   checked on the real DNG in tests/test_ingest.py); ``half_size`` bins each 2x2 block instead;
-- orientation: decoded with ``user_flip=0`` and rotated with ``seathru.core.linearise.orient``
+- orientation: decoded with ``user_flip=0`` and rotated with ``seathru.radiometry.linearise.orient``
   using the file's flip (``raw.sizes.flip`` read before postprocessing, which is what rawpy's
   default ``user_flip=None`` applies), so the clipping mask, computed on the raw grid, turns with
   the image.
@@ -36,8 +36,8 @@ import cv2
 import numpy as np
 import tifffile
 
-from seathru.core import linearise
-from seathru.core.colour import srgb_to_linear
+from seathru.radiometry import linearise
+from seathru.radiometry.colour import srgb_to_linear
 
 # exifread logs "File format not recognized" at WARNING for every file it cannot parse; a
 # missing EXIF block is an expected, recorded case here, not a warning.

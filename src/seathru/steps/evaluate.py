@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from seathru.core import metrics
+from seathru.eval import metrics
 from seathru.errors import PipelineError
 from seathru.io.atomic import write_json, write_text
 from seathru.io.cameras import CameraSet, read_cameras

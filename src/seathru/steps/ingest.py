@@ -50,7 +50,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import tifffile
 
-from seathru.core import linearise
+from seathru.radiometry import linearise
 from seathru.errors import PipelineError
 from seathru.io import raw as rawio
 from seathru.io.atomic import atomic_dir, write_json

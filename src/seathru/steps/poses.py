@@ -41,7 +41,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from seathru.core.geometry import normalise_c2w, range_bounds, unit_ball_normalisation
+from seathru.geometry.poses import normalise_c2w, range_bounds, unit_ball_normalisation
 from seathru.errors import PipelineError
 from seathru.io.atomic import atomic_dir, write_json
 from seathru.io.cameras import CameraSet, Frame, every_nth_split, write_cameras

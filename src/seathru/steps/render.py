@@ -20,7 +20,7 @@ grey; the display copies are multiplied by one scale per dataset so that the
 ``--exposure-percentile`` of the training images' values maps to ``--exposure-target``, then
 sRGB-encoded. Linear ``.tiff`` outputs are never scaled.
 
-Rendering goes through ``seathru.core.inference.render_frame`` in ray chunks (``--chunk``), so
+Rendering goes through ``seathru.nerf.inference.render_frame`` in ray chunks (``--chunk``), so
 memory stays bounded at any resolution; each output folder appears only once complete.
 """
 
@@ -36,8 +36,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from seathru.core import display
-from seathru.core.camera_path import smooth_camera_path
+from seathru.eval import display
+from seathru.eval.camera_path import smooth_camera_path
 from seathru.errors import PipelineError
 from seathru.io.atomic import atomic_dir, write_json
 from seathru.io.cameras import CameraSet, Frame, read_cameras
@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> None:
         raise PipelineError(f"{args.cameras}: no frame has split 'train'")
     model, device = load_model(args.model, args.device, args.threads)
 
-    from seathru.core.inference import render_frame
+    from seathru.nerf.inference import render_frame
 
     def render_fn(frame: Frame, downscale: int) -> dict:
         return render_frame(model, frame, chunk=args.chunk, downscale=downscale)
@@ -136,7 +136,7 @@ def load_model(path: Path, device_name: str = "auto", threads: int | None = None
         raise PipelineError(f"--device {device_name}: no CUDA device is available here; use cpu")
     if not Path(path).is_file():
         raise PipelineError(f"{path}: model file not found; run the 'train' step first")
-    from seathru.core.model import SeaThruModel
+    from seathru.nerf.model import SeaThruModel
 
     try:
         checkpoint = torch.load(path, map_location=device, weights_only=True)
@@ -195,7 +195,7 @@ def _check_outputs(outputs: dict, frame: Frame) -> None:
 def render_dataset(render_fn: RenderFn, cameras: CameraSet, out: Path, settings: dict) -> dict:
     """Render the test views and the camera path of ``cameras`` into ``out``; returns the stats.
 
-    ``render_fn(frame, downscale)`` returns ``seathru.core.inference.render_frame``'s dict.
+    ``render_fn(frame, downscale)`` returns ``seathru.nerf.inference.render_frame``'s dict.
     ``settings`` holds downscale, path_downscale, path_frames, fps, exposure_percentile,
     exposure_target and depth_cmap (see the CLI flags), plus anything to record in the stats.
     """

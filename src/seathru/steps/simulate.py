@@ -21,10 +21,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from seathru.core import scene as scene_mod
-from seathru.core import sensor as sensor_mod
-from seathru.core.colour import linear_to_srgb
-from seathru.core.water import PRESETS, WaterParams, water_image, water_params
+from seathru.sim import scene as scene_mod
+from seathru.sim import sensor as sensor_mod
+from seathru.radiometry.colour import linear_to_srgb
+from seathru.sim.water import PRESETS, WaterParams, water_image, water_params
 from seathru.errors import PipelineError
 from seathru.io.atomic import atomic_dir, write_json, write_text
 from seathru.io.cameras import CameraSet, Frame, every_nth_split, write_cameras

@@ -48,7 +48,7 @@ LOG_COLUMNS = ("step", "wall_time_s", "loss", "train_psnr", "test_psnr")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from seathru.core.model import ModelConfig
+    from seathru.nerf.model import ModelConfig
 
     d = ModelConfig()
     parser.add_argument("--cameras", required=True, type=Path, help="cameras.json to train on")
@@ -97,7 +97,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def build_config(args: argparse.Namespace, device_type: str = "cpu"):
-    from seathru.core.model import ModelConfig
+    from seathru.nerf.model import ModelConfig
 
     known = {f.name: f for f in fields(ModelConfig)}
     values = {"steps": args.steps, "max_minutes": args.max_minutes,
@@ -169,8 +169,8 @@ def load_split(cameras: CameraSet, frames) -> tuple[list, list]:
 
 def _checkpoint_matches(ckpt: dict, config, scene: dict) -> str | None:
     """None if ``ckpt`` can be resumed with these settings, else the reason it cannot."""
-    from seathru.core.model import ModelConfig
-    from seathru.core.training import CHECKPOINT_FORMAT
+    from seathru.nerf.model import ModelConfig
+    from seathru.nerf.training import CHECKPOINT_FORMAT
 
     if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
         return f"not a {CHECKPOINT_FORMAT} file"
@@ -248,9 +248,9 @@ def run(args: argparse.Namespace) -> None:
 def _train(args: argparse.Namespace) -> None:
     import torch
 
-    from seathru.core.model import SeaThruModel, build_scene
-    from seathru.core.rays import RayDataset
-    from seathru.core.training import TrainCallbacks, Trainer
+    from seathru.nerf.model import SeaThruModel, build_scene
+    from seathru.nerf.rays import RayDataset
+    from seathru.nerf.training import TrainCallbacks, Trainer
 
     device = _device(args.device)
     config = build_config(args, device.type)

@@ -17,7 +17,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from seathru.core.colour import linear_to_srgb
+from seathru.radiometry.colour import linear_to_srgb
 
 #: Smallest plausible raw payload, in bits per sensor pixel. Lossless raw needs ~8-16 bits and
 #: the most aggressive lossy raws (Kodak DC50 KDC, ~1.9) stay well above this; a stripped or

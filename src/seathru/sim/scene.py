@@ -35,7 +35,7 @@ from typing import Mapping, Sequence
 import cv2
 import numpy as np
 
-from seathru.core.colour import srgb_to_linear
+from seathru.radiometry.colour import srgb_to_linear
 
 NO_HIT = -2
 SEABED = -1

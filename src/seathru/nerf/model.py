@@ -30,11 +30,11 @@ import torch
 from torch import Tensor, nn
 from torch.profiler import record_function
 
-from seathru.core.fields import GridField, MLPField, SceneBox
-from seathru.core.medium import MEDIUM_MODES, Medium
-from seathru.core.rays import ray_box_intersect
-from seathru.core.rendering import RayRender, render_seathru
-from seathru.core.sampler import (candidate_edges, lookup_nearest, merge_edges,
+from seathru.nerf.fields import GridField, MLPField, SceneBox
+from seathru.nerf.medium import MEDIUM_MODES, Medium
+from seathru.nerf.rays import ray_box_intersect
+from seathru.nerf.rendering import RayRender, render_seathru
+from seathru.nerf.sampler import (candidate_edges, lookup_nearest, merge_edges,
                                   normalised_distance, occupancy_weights, sample_pdf,
                                   stratified_edges)
 
@@ -397,7 +397,7 @@ def build_scene(frames, near: float, far: float, centre, scale: float, mean_rgb=
     """
     import numpy as np
 
-    from seathru.core.rays import covisible_box
+    from seathru.nerf.rays import covisible_box
 
     box_min, box_max = covisible_box(frames, min_fraction=min_fraction)
     typical = 2.0 * float(np.median([f.near for f in frames]))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from seathru.core.rays import downscaled_size, frame_rays
+from seathru.nerf.rays import downscaled_size, frame_rays
 
 RENDER_KEYS = ("rgb", "restored", "direct", "backscatter", "depth", "opacity")
 

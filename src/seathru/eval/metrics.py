@@ -23,7 +23,7 @@ from collections.abc import Mapping
 import numpy as np
 from skimage.metrics import structural_similarity
 
-from seathru.core.colour import linear_to_srgb
+from seathru.radiometry.colour import linear_to_srgb
 
 SSIM_SIGMA = 1.5
 SSIM_TRUNCATE = 3.5  # scipy's truncation: radius int(3.5 * 1.5 + 0.5) = 5, an 11-tap window
@@ -161,13 +161,13 @@ def metric_scale(centres_normalised: np.ndarray, centres_truth: np.ndarray) -> d
 
     ``centres_normalised``: ``(N, 3)`` camera centres of the evaluated camera file (normalised
     units); ``centres_truth``: ``(N, 3)`` the same cameras' true centres. A similarity alignment
-    (Umeyama, ``seathru.core.geometry.umeyama``) absorbs any rotation, translation and scale the
+    (Umeyama, ``seathru.geometry.poses.umeyama``) absorbs any rotation, translation and scale the
     pose estimation introduced (COLMAP's arbitrary frame); its scale converts normalised
     distances (depths) to metres and normalised coefficients (1/unit) to 1/m by division.
     Returns ``scale``, the alignment's RMS residual in truth units and that residual relative to
     the truth trajectory's extent.
     """
-    from seathru.core.geometry import umeyama
+    from seathru.geometry.poses import umeyama
 
     centres_normalised = np.asarray(centres_normalised, dtype=np.float64)
     centres_truth = np.asarray(centres_truth, dtype=np.float64)

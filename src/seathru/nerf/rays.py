@@ -78,7 +78,7 @@ def covisible_box(frames, min_fraction: float = 0.5, grid: tuple[int, int] = (16
     the near bound (surfaces the cameras look at are rarely much farther than the nearest one,
     and beyond a few times that distance water hides them anyway). The box is where the model spends its
     full resolution; everything outside is still represented, contracted (see
-    ``seathru.core.fields.contract``), so the box only has to cover the well-observed core.
+    ``seathru.nerf.fields.contract``), so the box only has to cover the well-observed core.
     """
     frames = list(frames)
     if not frames:

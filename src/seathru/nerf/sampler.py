@@ -1,7 +1,7 @@
 """Where along each ray the object field is evaluated.
 
 Every sampler returns contiguous intervals ``t_edges`` (R, S+1), non-decreasing, from the ray's
-near bound to its far bound. ``seathru.core.rendering.render_seathru`` integrates the water in
+near bound to its far bound. ``seathru.nerf.rendering.render_seathru`` integrates the water in
 closed form inside every interval and before/after them, so intervals may be long where there is
 only water: samples are spent on surfaces only.
 

@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from seathru.core.fields import spherical_harmonics
+from seathru.nerf.fields import spherical_harmonics
 
 MEDIUM_MODES = ("off", "global", "view")
 

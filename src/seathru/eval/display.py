@@ -16,7 +16,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from seathru.core.colour import linear_to_srgb
+from seathru.radiometry.colour import linear_to_srgb
 
 DEFAULT_PERCENTILE = 99.0
 DEFAULT_TARGET = 0.9

@@ -33,10 +33,10 @@ from typing import Callable
 
 import torch
 
-from seathru.core.losses import (distortion_loss, mse, psnr_from_mse, reconstruction_loss, total_variation_3d,
+from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruction_loss, total_variation_3d,
                                  transmittance_prior)
-from seathru.core.model import ModelConfig, SeaThruModel
-from seathru.core.rays import RayBatch, RayDataset
+from seathru.nerf.model import ModelConfig, SeaThruModel
+from seathru.nerf.rays import RayBatch, RayDataset
 from seathru.errors import PipelineError
 
 CHECKPOINT_FORMAT = "seathru-train-checkpoint/1"
@@ -123,8 +123,8 @@ class Trainer:
         c = self.config
         if frames is None or c.min_views <= 1 or c.field != "grid":
             return None
-        from seathru.core.fields import axis_resolution, grid_vertices
-        from seathru.core.rays import view_counts
+        from seathru.nerf.fields import axis_resolution, grid_vertices
+        from seathru.nerf.rays import view_counts
 
         dims = axis_resolution(max(c.density_res) // 2, self.model.field.extent)
         points = grid_vertices(self.model.box, dims)

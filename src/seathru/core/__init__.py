@@ -1,1 +1,0 @@
-"""The shared numerical core: pure functions and modules, no file I/O."""

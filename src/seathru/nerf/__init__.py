@@ -1,0 +1,5 @@
+"""The SeaThru-NeRF model: rays, object fields, samplers, the water medium, the medium-aware
+closed-form renderer, losses, the training loop and whole-frame inference.
+
+PyTorch, no file I/O (steps pass callbacks). Never imports ``seathru.sim``.
+"""
