@@ -7,7 +7,7 @@ an existing simulation (``--sim DIR``, the folder holding ``truth/``). Both mode
 time (held-out evaluations for the log are not counted):
 
 - ours: the defaults (density grid + tri-plane colour, occupancy-guided samples, closed-form
-  water, ``--medium auto``);
+  water, ``medium.mode=auto``);
 - paper: positional-encoding MLP 8 x 256, 128 coarse + 32 fine samples per ray (hierarchical,
   the fine pass on all 160), view-dependent medium MLP, the paper's discretisation with water
   only between the samples, Adam lr 5e-4, 1024 rays per step.
@@ -39,16 +39,12 @@ import numpy as np
 
 from machine import cpu_name, load_average
 
+from seathru import settings
+from seathru.nerf.config import PAPER_OVERRIDES
+
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results" / "training.md"
-PAPER_FLAGS = ["--medium", "view", "--view-dependent-colour", "--lr", "5e-4",
-               "--batch-rays", "1024", "--steps", "1000000",
-               "--set", 'field="mlp"', "--set", 'sampler="hierarchical"',
-               "--set", "coarse_samples=128", "--set", "fine_samples=32",
-               "--set", 'render_method="paper"', "--set", "water_before=false",
-               "--set", "water_after=false", "--set", "network_lr_scale=1.0",
-               "--set", "medium_lr_scale=1.0", "--set", "transmittance_prior_weight=1e-4",
-               "--set", "distortion_weight=0", "--set", "min_views=0"]
+PAPER_FLAGS = settings.cli_flags(PAPER_OVERRIDES)
 PSNR_LEVELS = (20.0, 22.0, 24.0, 25.0, 26.0, 28.0, 30.0)
 NEAR_RANGE_M = 6.0
 
@@ -62,14 +58,13 @@ def device_name(device: str) -> str:
 
 
 def simulate_demo(root: Path) -> Path:
-    from seathru.sim.water import water_params
-    from seathru.steps.simulate import SimulationOptions, simulate
+    from seathru.steps.simulate import Settings, simulate
 
     out = root / "demo"
     if not (out / "truth" / "cameras.json").exists():
         print("simulating the demo dive (24 views, 320x240, orbit, default water)...", flush=True)
-        simulate(out, SimulationOptions(views=24, width=320, height=240, path="orbit",
-                                        water=water_params("default"), seed=0, workers=2))
+        simulate(out, Settings(views=24, width=320, height=240, path="orbit",
+                                        water="default", seed=0, workers=2))
     return out
 
 
@@ -266,7 +261,7 @@ def main() -> None:
         if row["test_psnr"] is not None:
             lines.append(f"| {int(row['step'])} | {row['wall_time_s']:.1f} | "
                          f"{row['test_psnr']:.2f} |")
-    lines += ["", f"Medium selection (ours, `--medium auto`): **{selection['chosen']}** — "
+    lines += ["", f"Medium selection (ours, `medium.mode=auto`): **{selection['chosen']}** — "
               f"{selection['reason']}", "", "Fitted water against the truth (1/m; c_med linear):",
               "", *water_table(runs, truth_water), ""]
     text = "\n".join(lines) + "\n"

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import tempfile
 import time
@@ -24,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from machine import cpu_name
 
@@ -51,50 +49,12 @@ def load_pixels(truth: Path, per_view: int, seed: int):
     return torch.cat(points), torch.cat(ranges), torch.cat(observed).float()
 
 
-def group_ids(points: torch.Tensor, voxel: float) -> tuple[torch.Tensor, int]:
-    _, ids = torch.unique(torch.floor(points / voxel).long(), dim=0, return_inverse=True)
-    return ids, int(ids.max()) + 1
-
-
-def projected_loss(attn, bs, colour, z, observed, ids, groups):
-    """Mean squared residual with the best non-negative J per group for this water."""
-    a = torch.exp(-attn * z[:, None])
-    b = colour * (1.0 - torch.exp(-bs * z[:, None]))
-    num = torch.zeros(groups, 3, dtype=z.dtype).index_add_(0, ids, a * (observed - b))
-    den = torch.zeros(groups, 3, dtype=z.dtype).index_add_(0, ids, a * a)
-    clean = (num / den.clamp_min(1e-12)).clamp_min(0.0)
-    return ((observed - clean[ids] * a - b) ** 2).mean()
-
-
-def fit(z, observed, ids, groups, start: dict, steps: int):
-    inv_softplus = lambda v: math.log(math.expm1(v))
-    raw = torch.tensor([inv_softplus(start["sigma_attn"])] * 3 + [inv_softplus(start["sigma_bs"])] * 3
-                       + [math.log(start["c_med"] / (1.5 - start["c_med"]))] * 3,
-                       dtype=torch.float64, requires_grad=True)
-    optimiser = torch.optim.Adam([raw], lr=0.03)
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, steps)
-
-    def water():
-        return F.softplus(raw[0:3]), F.softplus(raw[3:6]), torch.sigmoid(raw[6:9]) * 1.5
-
-    for _ in range(steps):
-        optimiser.zero_grad()
-        loss = projected_loss(*water(), z, observed, ids, groups)
-        loss.backward()
-        optimiser.step()
-        schedule.step()
-    with torch.no_grad():
-        attn, bs, colour = water()
-        return float(projected_loss(attn, bs, colour, z, observed, ids, groups)), {
-            "sigma_attn": attn.tolist(), "sigma_bs": bs.tolist(), "c_med": colour.tolist()}
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sim", type=Path, help="existing simulate output (holds truth/)")
     parser.add_argument("--voxel", type=float, default=0.02, help="grouping voxel, metres")
     parser.add_argument("--per-view", type=int, default=8000, help="pixels per training view")
-    parser.add_argument("--steps", type=int, default=1500)
+    parser.add_argument("--steps", type=int, default=500, help="most L-BFGS iterations")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
     sys.path.insert(0, str(REPO / "src"))
@@ -109,7 +69,9 @@ def main() -> None:
     true_water = json.loads((truth / "water.json").read_text())
     points, z, observed = load_pixels(truth, args.per_view, 0)
     z, observed = z.double(), observed.double()
-    ids, groups = group_ids(points, args.voxel)
+    from seathru.nerf.water_fit import fit_water, projected_loss, voxel_groups
+
+    ids, groups = voxel_groups(points, args.voxel)
     shared = float((torch.bincount(ids)[ids] > 1).double().mean())
     truth_t = [torch.tensor(true_water[k], dtype=torch.float64)
                for k in ("sigma_attn", "sigma_bs", "c_med")]
@@ -125,7 +87,10 @@ def main() -> None:
     for start in ({"sigma_attn": 0.2, "sigma_bs": 0.2, "c_med": 0.2},
                   {"sigma_attn": 0.8, "sigma_bs": 0.8, "c_med": 0.5},
                   {"sigma_attn": 0.5, "sigma_bs": 0.05, "c_med": 0.8}):
-        loss, fitted = fit(z, observed, ids, groups, start, args.steps)
+        result = fit_water(z, observed, ids, groups, start, args.steps)
+        loss = result.loss
+        fitted = {"sigma_attn": result.sigma_attn, "sigma_bs": result.sigma_bs,
+                  "c_med": result.c_med}
         cells = []
         for key in ("sigma_attn", "sigma_bs", "c_med"):
             err = [abs(f - t) / t for f, t in zip(fitted[key], true_water[key])]

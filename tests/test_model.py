@@ -16,7 +16,9 @@ from seathru.nerf.inference import render_frame
 from seathru.nerf.losses import (distortion_loss, reconstruction_loss, total_variation_3d,
                                  transmittance_prior)
 from seathru.nerf.medium import Medium
-from seathru.nerf.model import ModelConfig, SeaThruModel
+from seathru.nerf.config import TrainConfig
+from seathru.settings import SettingsError
+from seathru.nerf.model import SeaThruModel
 from seathru.nerf.rays import (RayDataset, covisible_box, frame_rays,
                                ray_box_intersect, view_counts)
 from seathru.nerf.rendering import nerf_weights
@@ -144,7 +146,7 @@ def test_contraction_is_bounded_and_invertible(values):
 
 
 def test_grid_vertices_map_back_to_grid_coordinates():
-    model = SeaThruModel(ModelConfig(**SMALL), scene_dict())
+    model = SeaThruModel(TrainConfig.from_dict(SMALL), scene_dict())
     dims = [5, 4, 3]
     points = grid_vertices(model.box, dims).reshape(-1, 3)
     g = model.box.to_grid(points)
@@ -296,7 +298,7 @@ def random_rays(count=32, seed=0):
 
 
 def test_medium_off_renders_plain_nerf_exactly():
-    model = SeaThruModel(ModelConfig(**{**SMALL, "medium": "off"}), scene_dict())
+    model = SeaThruModel(TrainConfig.from_dict({**SMALL, "medium": "off"}), scene_dict())
     with torch.no_grad():
         model.field.density.coarse.fill_(0.5)
         out = model(*random_rays()).render
@@ -306,7 +308,7 @@ def test_medium_off_renders_plain_nerf_exactly():
 
 
 def test_model_survives_a_weights_only_round_trip():
-    model = SeaThruModel(ModelConfig(**SMALL), scene_dict())
+    model = SeaThruModel(TrainConfig.from_dict(SMALL), scene_dict())
     with torch.no_grad():
         for p in model.field.parameters():
             p.add_(0.05 * torch.randn_like(p))
@@ -324,7 +326,7 @@ def test_model_survives_a_weights_only_round_trip():
 
 
 def test_upsampling_the_grids_keeps_the_rendering():
-    model = SeaThruModel(ModelConfig(**SMALL), scene_dict())
+    model = SeaThruModel(TrainConfig.from_dict(SMALL), scene_dict())
     with torch.no_grad():
         model.field.density.raw.add_(torch.randn_like(model.field.density.raw).mul_(0.3))
     model.eval()
@@ -338,7 +340,7 @@ def test_upsampling_the_grids_keeps_the_rendering():
 
 
 def test_water_parameters_view_mode_reports_range():
-    model = SeaThruModel(ModelConfig(**{**SMALL, "medium": "view"}), scene_dict())
+    model = SeaThruModel(TrainConfig.from_dict({**SMALL, "medium": "view"}), scene_dict())
     with torch.no_grad():
         model.medium.view_net[-1].weight.normal_(0, 0.5)
     water = model.water_parameters(torch.nn.functional.normalize(torch.randn(50, 3), dim=-1))
@@ -349,7 +351,7 @@ def test_water_parameters_view_mode_reports_range():
 
 
 def test_render_frame_shapes_and_chunk_invariance():
-    model = SeaThruModel(ModelConfig(**SMALL), scene_dict())
+    model = SeaThruModel(TrainConfig.from_dict(SMALL), scene_dict())
     frame = look_at_frame((0.0, -2.5, 0.8), target=(0.0, 0.0, 0.2), width=10, height=6,
                           fx=8, fy=8, cx=5, cy=3, near=0.5, far=6.0)
     full = render_frame(model, frame, chunk=7)
@@ -365,10 +367,23 @@ def test_render_frame_shapes_and_chunk_invariance():
 
 
 def test_config_round_trip_and_validation():
-    config = ModelConfig(steps=10, medium="off")
-    assert ModelConfig.from_dict(config.to_dict()) == config
-    assert "max_minutes" not in config.identity()
-    with pytest.raises(ValueError):
-        ModelConfig(field="mlp", sampler="occupancy").validate()
-    with pytest.raises(ValueError):
-        ModelConfig(medium="soup").validate()
+    config = TrainConfig.from_dict({"steps": 10, "medium": {"mode": "off"}})
+    assert config.medium.mode == "off" and config.steps == 10
+    assert TrainConfig.from_dict(config.to_dict()) == config
+    identity = config.identity()
+    assert "max_minutes" not in identity and identity["medium.mode"] == "off"
+    with pytest.raises(SettingsError, match="sampler.kind=hierarchical"):
+        TrainConfig.from_dict({"field": {"kind": "mlp"}, "sampler": {"kind": "occupancy"}})
+    with pytest.raises(SettingsError, match="medium.mode: 'soup' is not one of"):
+        TrainConfig.from_dict({"medium": {"mode": "soup"}})
+
+
+def test_flat_configs_of_version_1_model_files_still_load():
+    flat = {"field": "grid", "sampler": "occupancy", "medium": "view", "medium_sigma_init": 0.2,
+            "density_res": [8, 12, 16], "lr": 0.01, "steps": 7, "recon_eps": 1e-2,
+            "removed_long_ago": 3}
+    config = TrainConfig.from_dict(flat)
+    assert (config.field.kind, config.sampler.kind, config.medium.mode) == \
+        ("grid", "occupancy", "view")
+    assert config.medium.sigma_init == 0.2 and config.field.density_res == [8, 12, 16]
+    assert config.optim.lr == 0.01 and config.steps == 7 and config.loss.recon_eps == 1e-2

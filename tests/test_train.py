@@ -20,7 +20,9 @@ import torch
 from seathru.cli import main as cli_main
 from seathru.nerf.inference import render_frame
 from seathru.eval.metrics import psnr
-from seathru.nerf.model import ModelConfig, SeaThruModel, build_scene
+from seathru import settings
+from seathru.nerf.config import CPU_BATCH_RAYS, GPU_BATCH_RAYS, TrainConfig, resolve_batch_rays
+from seathru.nerf.model import SeaThruModel, scene_from_frames
 from seathru.nerf.rays import RayDataset
 from seathru.nerf.training import TrainCallbacks, Trainer
 from seathru.errors import PipelineError
@@ -31,17 +33,17 @@ from tests.conftest import REPO_ROOT
 torch.set_num_threads(1)
 
 # Small grids and batches: a few hundred steps take seconds on one core.
-FAST = {"density_res": [32, 48, 64], "plane_res": [128, 192, 256], "plane_coarse_res": 32,
-        "density_coarse_res": 16, "samples_per_ray": 12}
-FAST_FLAGS = [arg for key, value in FAST.items() for arg in ("--set", f"{key}={json.dumps(value)}")]
+FAST = {"field": {"density_res": [32, 48, 64], "plane_res": [128, 192, 256],
+                  "plane_coarse_res": 32, "density_coarse_res": 16},
+        "sampler": {"samples_per_ray": 12}}
+FAST_FLAGS = settings.cli_flags(FAST)
 
 
 def _simulate(root: Path, water: str) -> Path:
-    from seathru.sim.water import water_params
-    from seathru.steps.simulate import SimulationOptions, simulate
+    from seathru.steps.simulate import Settings, simulate
 
     out = root / f"sim_{water}"
-    simulate(out, SimulationOptions(views=16, width=64, height=48, water=water_params(water),
+    simulate(out, Settings(views=16, width=64, height=48, water=water,
                                     supersample=3, test_every=8, seed=1))
     return out / "truth"
 
@@ -91,7 +93,7 @@ def test_training_learns_the_scene_and_the_water(default_scene, tmp_path):
     assert tested[-1] > tested[0] + 3.0
 
     checkpoint = torch.load(out / "model.pt", weights_only=True)
-    assert checkpoint["format"] == "seathru-model/1"
+    assert checkpoint["format"] == "seathru-model/2"
     model = SeaThruModel.from_checkpoint(checkpoint)
     rendered = [render_frame(model, f)["rgb"] for f in cameras.split("test")]
     assert psnr(np.stack(rendered), test_stack) > baseline + 2.5
@@ -148,21 +150,22 @@ def test_training_resumes_after_sigkill(default_scene, tmp_path):
     assert steps == sorted(steps) and steps[-1] == 120 and len(set(steps)) == len(steps)
 
     # a checkpoint of other settings is not resumed
-    third = subprocess.run([*command[:-len(FAST_FLAGS)], "--lr", "0.01", *FAST_FLAGS], env=env,
+    third = subprocess.run([*command[:-len(FAST_FLAGS)], "--optim.lr", "0.01", *FAST_FLAGS], env=env,
                            capture_output=True, text=True, timeout=300)
     assert third.returncode == 0
-    assert "not resumed, starting fresh (settings changed: lr" in third.stderr
+    assert "not resumed, starting fresh (settings changed: optim.lr" in third.stderr
 
 
 def _small_trainer(scene_dir: Path, **config) -> Trainer:
     cameras = read_cameras(scene_dir / "cameras.json")
     train = cameras.split("train")
     data = RayDataset(train, [read_image(cameras.image_path(f)) for f in train])
-    scene = build_scene(train, cameras.near, cameras.far, cameras.centre, cameras.scale,
+    scene = scene_from_frames(train, cameras.near, cameras.far, cameras.centre, cameras.scale,
                         data.rays.rgb.mean(0).tolist())
-    settings = {**FAST, "max_minutes": 0, "batch_rays": 256, "eval_rays": 256,
-                "snapshot_every": 5, "medium": "global", **config}
-    return Trainer(SeaThruModel(ModelConfig(**settings), scene), data, frames=train)
+    overrides = {**FAST, "max_minutes": 0, "batch_rays": 256, "eval_rays": 256,
+                 "snapshot_every": 5, "medium": {"mode": "global"}, **config}
+    config = settings.from_mapping(TrainConfig, overrides)
+    return Trainer(SeaThruModel(config, scene), data, frames=train)
 
 
 def test_nan_batches_roll_back_without_corrupting_the_model(default_scene):
@@ -221,12 +224,14 @@ def test_batch_size_defaults_per_device_and_an_explicit_value_wins():
     parser = argparse.ArgumentParser()
     train_step.add_arguments(parser)
     required = ["--cameras", "c.json", "--out", "o"]
-    default = parser.parse_args(required)
-    assert train_step.build_config(default, "cpu").batch_rays == ModelConfig.batch_rays
-    assert train_step.build_config(default, "cuda").batch_rays == train_step.GPU_BATCH_RAYS
-    explicit = parser.parse_args([*required, "--batch-rays", "2048"])
-    assert train_step.build_config(explicit, "cuda").batch_rays == 2048
-    assert train_step.build_config(explicit, "cpu").batch_rays == 2048
+    default = settings.from_namespace(TrainConfig, parser.parse_args(required))
+    assert default.batch_rays is None
+    assert resolve_batch_rays(default, "cpu").batch_rays == CPU_BATCH_RAYS
+    assert resolve_batch_rays(default, "cuda").batch_rays == GPU_BATCH_RAYS
+    explicit = settings.from_namespace(
+        TrainConfig, parser.parse_args([*required, "--batch-rays", "2048"]))
+    assert resolve_batch_rays(explicit, "cuda").batch_rays == 2048
+    assert resolve_batch_rays(explicit, "cpu").batch_rays == 2048
 
 
 def _denormals_flushed() -> bool:
@@ -240,5 +245,5 @@ def test_train_step_leaves_denormals_as_it_found_them(default_scene, tmp_path):
     assert _denormals_flushed()  # the probe sees the flag
     torch.set_flush_denormal(False)
     _train_cli(default_scene / "cameras.json", tmp_path, "--steps", "3", "--batch-rays", "64",
-               "--medium", "global")
+               "--medium.mode", "global")
     assert not _denormals_flushed()

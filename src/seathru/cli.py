@@ -46,8 +46,13 @@ def main(argv: list[str] | None = None, only: str | None = None) -> int:
     args = build_parser(steps).parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    # One path for messages: log records go through tqdm.write while a progress bar is shown, so
+    # bars and log lines never interleave and nothing is printed twice.
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
     try:
-        args._run(args)
+        with logging_redirect_tqdm():
+            args._run(args)
     except PipelineError as exc:
         print(f"seathru {args.step}: error: {exc}", file=sys.stderr)
         return 2

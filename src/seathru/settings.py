@@ -107,6 +107,8 @@ def _coerce(tp: Any, value: Any, name: str, length: int | None = None) -> Any:
             return None
         raise SettingsError(f"{name}: a value is required ({_describe(tp)})")
     origin = typing.get_origin(inner)
+    if isinstance(value, bool) and (inner is str or origin is Literal):
+        value = _yaml11_word(value, typing.get_args(inner) if origin is Literal else ())
     if origin is Literal:
         choices = typing.get_args(inner)
         if value not in choices:
@@ -141,6 +143,25 @@ def _coerce(tp: Any, value: Any, name: str, length: int | None = None) -> Any:
             raise SettingsError(f"{name}: expected a path, got {value!r}")
         return Path(value)
     raise TypeError(f"{name}: unsupported settings type {tp!r}")
+
+
+# YAML 1.1 (PyYAML, Snakemake's config) reads off/on/no/yes as booleans: a string setting
+# given as `mode: off` arrives as False and means the word.
+_YAML11_WORDS = {False: ("off", "no", "false"), True: ("on", "yes", "true")}
+
+
+def _yaml11_word(value: bool, choices: tuple) -> Any:
+    words = _YAML11_WORDS[value]
+    return next((w for w in words if w in choices), value) if choices else words[0]
+
+
+def _field_type(cls: type, dotted: str) -> Any:
+    """The annotated type of a dotted setting name of ``cls``, or None when unknown."""
+    head, _, rest = dotted.partition(".")
+    tp = _hints(cls).get(head)
+    if rest:
+        return _field_type(tp, rest) if tp is not None and _is_section(tp) else None
+    return tp
 
 
 # --------------------------------------------------------------------------- construction
@@ -285,6 +306,7 @@ def add_arguments(parser: argparse.ArgumentParser, cls: type, prefix: str = "") 
             kwargs["metavar"] = item.__name__.upper()
         else:
             kwargs["type"] = inner if inner in (int, float, str, Path) else str
+            kwargs["metavar"] = {int: "N", float: "X", Path: "PATH"}.get(inner, "TEXT")
         group.add_argument(flag, **kwargs)
 
 
@@ -292,11 +314,15 @@ def from_namespace(cls: type, namespace: argparse.Namespace) -> Any:
     """The settings of ``cls`` from parsed flags (added by :func:`add_arguments`)."""
     names = set(field_names(cls))
     given = {k: v for k, v in vars(namespace).items() if k in names}
-    return from_mapping(cls, nest(given))
+    # errors name the step (``seathru.cli`` stores it) and the dotted setting
+    return from_mapping(cls, nest(given), getattr(namespace, "step", "") or "")
 
 
-def cli_flags(overrides: Mapping[str, Any]) -> list[str]:
+def cli_flags(overrides: Mapping[str, Any], cls: type | None = None) -> list[str]:
     """Command-line arguments for nested overrides: the inverse of parsing them.
+
+    With ``cls``, a boolean given for a string setting is read as the YAML 1.1 word it was
+    (``mode: off``).
 
     >>> cli_flags({"medium": {"mode": "off"}, "seed": 1, "wb": None})
     ['--medium.mode', 'off', '--seed', '1']
@@ -306,6 +332,11 @@ def cli_flags(overrides: Mapping[str, Any]) -> list[str]:
         name = key.replace("_", "-")
         if value is None:
             continue
+        tp = _field_type(cls, key) if cls is not None else None
+        if isinstance(value, bool) and tp is not None and _unwrap_optional(tp)[0] is not bool:
+            inner = _unwrap_optional(tp)[0]
+            choices = typing.get_args(inner) if typing.get_origin(inner) is Literal else ()
+            value = _yaml11_word(value, choices)
         if isinstance(value, bool):
             args.append(f"--{name}" if value else f"--no-{name}")
         elif isinstance(value, (list, tuple)):
@@ -321,7 +352,11 @@ def _schema_of(tp: Any, f: dataclasses.Field | None) -> dict:
     inner, optional = _unwrap_optional(tp)
     origin = typing.get_origin(inner)
     if origin is Literal:
-        node: dict[str, Any] = {"enum": list(typing.get_args(inner))}
+        choices = list(typing.get_args(inner))
+        # YAML 1.1 booleans standing for a choice's word (see _yaml11_word)
+        choices += [flag for flag, words in _YAML11_WORDS.items()
+                    if any(w in choices for w in words)]
+        node: dict[str, Any] = {"enum": choices}
     elif origin is list:
         item = _schema_of(typing.get_args(inner)[0], None)
         node = {"type": "array", "items": item}
@@ -373,9 +408,12 @@ def markdown_table(cls: type, step: str) -> str:
                 walk(tp, f"{prefix}{f.name}.")
                 continue
             default = _default_of(f)
+            if isinstance(default, bool):
+                default = str(default).lower()  # as YAML writes it
             shown = "automatic" if default is None else f"`{default}`"
-            rows.append(f"| `{step}.{prefix}{f.name}` | {_describe(tp)} | {shown} | "
-                        f"{f.metadata.get('help', '')} |")
+            cells = [f"`{step}.{prefix}{f.name}`", _describe(tp), shown,
+                     f.metadata.get("help", "")]
+            rows.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
 
     del hints
     walk(cls, "")

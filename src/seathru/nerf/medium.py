@@ -9,7 +9,7 @@ Modes (``MEDIUM_MODES``):
   paper's medium network; it starts equal to the global values (zero last layer).
 
 The mode lives in a buffer, so a state dict carries it and it can change during training
-(``--medium auto``). Shapes: directions (R, 3) -> each parameter (R, 3).
+(``medium.mode=auto``). Shapes: directions (R, 3) -> each parameter (R, 3).
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ MEDIUM_MODES = ("off", "global", "view")
 
 
 def inverse_softplus(y: float) -> float:
+    y = max(y, 1e-6)  # softplus never reaches 0
     return y + math.log(-math.expm1(-y)) if y < 20 else y
 
 
@@ -64,6 +65,13 @@ class Medium(nn.Module):
                 nn.init.zeros_(self.view_net[-1].weight)
                 nn.init.zeros_(self.view_net[-1].bias)
         self.mode_index.fill_(MEDIUM_MODES.index(mode))
+
+    @torch.no_grad()
+    def set_global(self, sigma_attn, sigma_bs, c_med) -> None:
+        """Set the global water (per channel, normalised units; ``c_med`` below colour_max)."""
+        self.raw_attn.copy_(torch.tensor([inverse_softplus(float(v)) for v in sigma_attn]))
+        self.raw_bs.copy_(torch.tensor([inverse_softplus(float(v)) for v in sigma_bs]))
+        self.raw_colour.copy_(torch.tensor([logit(float(v) / self.colour_max) for v in c_med]))
 
     def global_parameters(self) -> list[nn.Parameter]:
         return [self.raw_attn, self.raw_bs, self.raw_colour]

@@ -22,125 +22,23 @@ baseline (``field="mlp"``, ``sampler="hierarchical"``) uses a PE MLP with 128 + 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
-from dataclasses import field as dc_field
+from dataclasses import dataclass
 from typing import Any
 
 import torch
 from torch import Tensor, nn
 from torch.profiler import record_function
 
+from seathru.nerf.config import TrainConfig
 from seathru.nerf.fields import GridField, MLPField, SceneBox
-from seathru.nerf.medium import MEDIUM_MODES, Medium
+from seathru.nerf.medium import Medium
 from seathru.nerf.rays import ray_box_intersect
 from seathru.nerf.rendering import RayRender, render_seathru
 from seathru.nerf.sampler import (candidate_edges, lookup_nearest, merge_edges,
                                   normalised_distance, occupancy_weights, sample_pdf,
                                   stratified_edges)
 
-MODEL_FORMAT = "seathru-model/1"
-
-
-@dataclass
-class ModelConfig:
-    """Every setting of the model and its training (defaults: the fast CPU model)."""
-
-    # object field
-    field: str = "grid"                     # "grid" (fast) | "mlp" (paper baseline)
-    density_res: list = dc_field(default_factory=lambda: [96, 128, 160])  # per stage, longest axis
-    plane_res: list = dc_field(default_factory=lambda: [128, 256, 384])    # per stage, fine level
-    plane_coarse_res: int = 48
-    density_coarse_res: int = 32
-    stage_starts: list = dc_field(default_factory=lambda: [0.08, 0.25])    # progress of stages 1, 2
-    plane_channels: int = 8
-    decoder_hidden: int = 32
-    view_dependent_colour: bool = False
-    colour_max: float = 1.5
-    init_opacity: float = 0.05              # initial object opacity across the scene box
-    mlp_width: int = 256
-    mlp_depth: int = 8
-    # sampling
-    sampler: str = "occupancy"              # "occupancy" | "hierarchical" (paper baseline)
-    candidates_linear: int = 64
-    candidates_disparity: int = 16
-    samples_per_ray: int = 16
-    uniform_mix: float = 0.1                # final share of uniformly placed samples
-    uniform_mix_start: float = 1.0          # ... at the start (the density grid knows nothing)
-    uniform_mix_until: float = 0.3          # progress by which it has fallen to uniform_mix
-    occupancy_dilate: int = 1
-    occupancy_lookup: str = "exact"         # "exact" (trilinear, current) | "grid" (cached)
-    occupancy_refresh_every: int = 8
-    colour_weight_threshold: float = 1e-4
-    coarse_samples: int = 128
-    fine_samples: int = 32
-    # water
-    medium: str = "auto"                    # "auto" | "off" | "global" | "view"
-    medium_sigma_init: float = 0.0          # 0: 0.5 / typical range
-    render_method: str = "exact"            # "exact" | "paper"
-    water_before: bool = True
-    water_after: bool = True
-    auto_select_at: float = 0.8             # progress at which --medium auto decides
-    auto_trial_share: float = 0.05          # share of the run each trial branch trains
-    auto_margin_db: float = 0.5             # water must beat no water by this on held-out rays
-    auto_backscatter_share: float = 0.01    # below: backscatter negligible
-    auto_attenuation: float = 0.02          # below: attenuation over the scene depth negligible
-    # training
-    steps: int = 6000
-    batch_rays: int = 1024
-    lr: float = 0.05
-    density_lr_scale: float = 4.0
-    network_lr_scale: float = 0.1
-    medium_lr_scale: float = 1.0
-    warmup_steps: int = 30
-    lr_final_ratio: float = 0.05
-    transmittance_prior_weight: float = 1e-4
-    transmittance_prior_start: float = 0.0  # progress at which the prior starts (ramped in 0.1)
-    distortion_weight: float = 0.01
-    density_tv_weight: float = 0.0
-    min_views: int = 2                      # density is only learnt where this many views look
-    recon_eps: float = 1e-3
-    seed: int = 0
-    max_minutes: float = 3.0
-    eval_rays: int = 4096
-    nan_max_retries: int = 5
-    snapshot_every: int = 50
-    log_every: int = 50
-    checkpoint_every: int = 500
-
-    # Fields that do not change the model being trained (a resumed run may change them).
-    RUNTIME_FIELDS = ("max_minutes", "log_every", "checkpoint_every", "eval_rays",
-                      "snapshot_every", "nan_max_retries")
-
-    def to_dict(self) -> dict:
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
-
-    @classmethod
-    def from_dict(cls, data: dict) -> "ModelConfig":
-        known = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in data.items() if k in known})
-
-    def identity(self) -> dict:
-        """The settings that must match for a checkpoint to be resumed."""
-        return {k: v for k, v in self.to_dict().items() if k not in self.RUNTIME_FIELDS}
-
-    def validate(self) -> None:
-        if self.field not in ("grid", "mlp"):
-            raise ValueError(f"field must be 'grid' or 'mlp', got {self.field!r}")
-        if self.sampler not in ("occupancy", "hierarchical"):
-            raise ValueError(f"sampler must be 'occupancy' or 'hierarchical', got {self.sampler!r}")
-        if self.field == "mlp" and self.sampler == "occupancy":
-            raise ValueError("the MLP field has no density grid: use sampler='hierarchical'")
-        if self.medium not in ("auto", *MEDIUM_MODES):
-            raise ValueError(f"medium must be auto, off, global or view, got {self.medium!r}")
-        if len(self.density_res) != len(self.plane_res) or \
-                len(self.stage_starts) != len(self.density_res) - 1:
-            raise ValueError("density_res and plane_res need one entry per stage and "
-                             "stage_starts one per stage after the first")
-        for name in ("steps", "batch_rays", "samples_per_ray"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.lr <= 0:
-            raise ValueError(f"lr must be > 0, got {self.lr}")
+MODEL_FORMAT = "seathru-model/2"  # /2: nested config sections; /1 files still load
 
 
 @dataclass
@@ -151,8 +49,8 @@ class ModelOutput:
     coarse: RayRender | None = None  # hierarchical sampler: the coarse pass
 
 
-def initial_medium_mode(config: ModelConfig) -> str:
-    return "global" if config.medium == "auto" else config.medium
+def initial_medium_mode(config: TrainConfig) -> str:
+    return "global" if config.medium.mode == "auto" else config.medium.mode
 
 
 def _replace_parameter(root: nn.Module, name: str, value: Tensor) -> nn.Parameter:
@@ -169,7 +67,7 @@ def _replace_parameter(root: nn.Module, name: str, value: Tensor) -> nn.Paramete
 
 
 class SeaThruModel(nn.Module):
-    def __init__(self, config: ModelConfig, scene: dict):
+    def __init__(self, config: TrainConfig, scene: dict):
         super().__init__()
         config.validate()
         self.config = config
@@ -177,30 +75,30 @@ class SeaThruModel(nn.Module):
         self.box = SceneBox(scene["box_min"], scene["box_max"])
         extent = (self.box.box_max - self.box.box_min).tolist()
         typical = float(scene.get("typical_range") or max(extent))
-        if config.field == "grid":
+        if config.field.kind == "grid":
             diagonal = math.sqrt(sum(e * e for e in extent))
-            init_density = -math.log(1.0 - config.init_opacity) / diagonal
-            self.field = GridField(extent, config.density_res[0], config.plane_res[0],
-                                   config.plane_coarse_res, config.plane_channels,
-                                   config.decoder_hidden, config.view_dependent_colour,
-                                   config.colour_max, init_density, config.density_coarse_res)
+            init_density = -math.log(1.0 - config.field.init_opacity) / diagonal
+            self.field = GridField(extent, config.field.density_res[0], config.field.plane_res[0],
+                                   config.field.plane_coarse_res, config.field.plane_channels,
+                                   config.field.decoder_hidden, config.field.view_dependent_colour,
+                                   config.field.colour_max, init_density, config.field.density_coarse_res)
         else:
-            self.field = MLPField(config.mlp_width, config.mlp_depth, colour_max=config.colour_max,
-                                  view_dependent=config.view_dependent_colour)
-        sigma_init = config.medium_sigma_init or 0.5 / typical
+            self.field = MLPField(config.field.mlp_width, config.field.mlp_depth, colour_max=config.field.colour_max,
+                                  view_dependent=config.field.view_dependent_colour)
+        sigma_init = config.medium.sigma_init or 0.5 / typical
         c_med = scene.get("c_med_init", [0.1, 0.2, 0.3])
-        if config.field == "grid":
+        if config.field.kind == "grid":
             self.field.decoder.init_colour(c_med)
-        self.medium = Medium(initial_medium_mode(config), sigma_init, c_med, config.colour_max)
+        self.medium = Medium(initial_medium_mode(config), sigma_init, c_med, config.field.colour_max)
         self.register_buffer("stage", torch.tensor(0))
         self._occupancy: Tensor | None = None
-        self.uniform_mix = config.uniform_mix  # the trainer anneals it
+        self.uniform_mix = config.sampler.uniform_mix  # the trainer anneals it
 
     def set_progress(self, progress: float) -> None:
         """Training progress in [0, 1]: anneals the share of uniformly placed samples."""
         c = self.config
-        fade = min(1.0, progress / c.uniform_mix_until) if c.uniform_mix_until > 0 else 1.0
-        self.uniform_mix = c.uniform_mix_start + (c.uniform_mix - c.uniform_mix_start) * fade
+        fade = min(1.0, progress / c.sampler.uniform_mix_until) if c.sampler.uniform_mix_until > 0 else 1.0
+        self.uniform_mix = c.sampler.uniform_mix_start + (c.sampler.uniform_mix - c.sampler.uniform_mix_start) * fade
 
     # ------------------------------------------------------------------ construction / io
     @classmethod
@@ -213,7 +111,7 @@ class SeaThruModel(nn.Module):
             state = ckpt["model"]
         else:
             raise ValueError("checkpoint has neither 'state_dict' nor 'model'")
-        model = cls(ModelConfig.from_dict(ckpt["config"]), ckpt["scene"])
+        model = cls(TrainConfig.from_dict(ckpt["config"]), ckpt["scene"])
         model.load_state_dict_resizing(state)
         model.to(device)
         model.eval()
@@ -237,16 +135,16 @@ class SeaThruModel(nn.Module):
 
     # ------------------------------------------------------------------ coarse to fine
     def stage_for_progress(self, progress: float) -> int:
-        return sum(1 for start in self.config.stage_starts if progress >= start)
+        return sum(1 for start in self.config.field.stage_starts if progress >= start)
 
     def set_stage(self, stage: int) -> dict[str, tuple[nn.Parameter, nn.Parameter]]:
         """Resample the grids to ``stage``'s resolution; returns {name: (old, new) parameter}."""
         if stage == int(self.stage):
             return {}
-        if self.config.field != "grid":
+        if self.config.field.kind != "grid":
             self.stage.fill_(stage)
             return {}
-        values = self.field.resize(self.config.density_res[stage], self.config.plane_res[stage])
+        values = self.field.resize(self.config.field.density_res[stage], self.config.field.plane_res[stage])
         own = dict(self.named_parameters())
         swapped = {}
         for short, value in values.items():
@@ -259,8 +157,8 @@ class SeaThruModel(nn.Module):
     # ------------------------------------------------------------------ rendering
     def refresh_occupancy(self) -> None:
         """Recompute the cached occupancy grid (``occupancy_lookup="grid"`` only)."""
-        if self.config.field == "grid" and self.config.occupancy_lookup == "grid":
-            self._occupancy = self.field.occupancy_density(self.config.occupancy_dilate)
+        if self.config.field.kind == "grid" and self.config.sampler.occupancy_lookup == "grid":
+            self._occupancy = self.field.occupancy_density(self.config.sampler.occupancy_dilate)
         else:
             self._occupancy = None
 
@@ -274,7 +172,7 @@ class SeaThruModel(nn.Module):
         samples (training); None: deterministic."""
         sigma_attn, sigma_bs, c_med = self.medium(dirs)
         t_split = self._split_distance(origins, dirs, near)
-        if self.config.sampler == "occupancy":
+        if self.config.sampler.kind == "occupancy":
             return self._forward_occupancy(origins, dirs, near, far, t_split, generator,
                                            (sigma_attn, sigma_bs, c_med))
         return self._forward_hierarchical(origins, dirs, near, far, t_split, generator,
@@ -287,18 +185,18 @@ class SeaThruModel(nn.Module):
 
     def _render(self, sigma, rgb, t_edges, water) -> RayRender:
         c = self.config
-        return render_seathru(sigma, rgb, t_edges, *water, method=c.render_method,
-                              water_before=c.water_before, water_after=c.water_after)
+        return render_seathru(sigma, rgb, t_edges, *water, method=c.medium.render_method,
+                              water_before=c.medium.water_before, water_after=c.medium.water_after)
 
     def _forward_occupancy(self, origins, dirs, near, far, t_split, generator, water):
         c = self.config
-        rays, samples = origins.shape[0], c.samples_per_ray
+        rays, samples = origins.shape[0], c.sampler.samples_per_ray
         with torch.no_grad(), record_function("seathru.sample"):
-            candidates = candidate_edges(near, far, t_split, c.candidates_linear,
-                                         c.candidates_disparity)
+            candidates = candidate_edges(near, far, t_split, c.sampler.candidates_linear,
+                                         c.sampler.candidates_disparity)
             mids = 0.5 * (candidates[:, 1:] + candidates[:, :-1])
             g = self.box.to_grid(origins[:, None, :] + dirs[:, None, :] * mids[..., None])
-            if c.occupancy_lookup == "exact":
+            if c.sampler.occupancy_lookup == "exact":
                 density = self.field.density_at(g.reshape(-1, 3)).reshape(mids.shape)
             else:
                 if self._occupancy is None or self._occupancy.device != origins.device:
@@ -306,7 +204,7 @@ class SeaThruModel(nn.Module):
                 density = lookup_nearest(self._occupancy, g)
             weights = occupancy_weights(candidates, density)
             jitter = self._jitter(rays, samples - 1, generator, origins.device)
-            mix = self.uniform_mix if self.training else c.uniform_mix
+            mix = self.uniform_mix if self.training else c.sampler.uniform_mix
             t_edges = sample_pdf(candidates, weights, samples, mix, jitter)
             deltas = t_edges[:, 1:] - t_edges[:, :-1]
             mids = t_edges[:, :-1] + 0.5 * deltas
@@ -316,16 +214,16 @@ class SeaThruModel(nn.Module):
             sigma = self.field.density_at(g).reshape(rays, samples)
         with torch.no_grad():
             w = occupancy_weights(t_edges, sigma.detach())
-            keep = (w.reshape(-1) > c.colour_weight_threshold).nonzero().squeeze(-1)
+            keep = (w.reshape(-1) > c.sampler.colour_weight_threshold).nonzero().squeeze(-1)
         with record_function("seathru.colour"):
             view = None
-            if c.view_dependent_colour:
+            if c.field.view_dependent_colour:
                 view = dirs[:, None, :].expand(rays, samples, 3).reshape(-1, 3)[keep]
             colours = self.field.colour_at(g[keep], view)
             rgb = colours.new_zeros(rays * samples, 3).index_copy(0, keep, colours)
         with record_function("seathru.render"):
             render = self._render(sigma, rgb.reshape(rays, samples, 3), t_edges, water)
-        share = c.candidates_linear / (c.candidates_linear + c.candidates_disparity)
+        share = c.sampler.candidates_linear / (c.sampler.candidates_linear + c.sampler.candidates_disparity)
         s_edges = normalised_distance(t_edges, near, far, t_split, share) \
             if self.training else None
         return ModelOutput(render=render, t_edges=t_edges, s_edges=s_edges)
@@ -342,16 +240,16 @@ class SeaThruModel(nn.Module):
     def _forward_hierarchical(self, origins, dirs, near, far, t_split, generator, water):
         c = self.config
         rays = origins.shape[0]
-        n_disp = max(1, c.coarse_samples // 4)
+        n_disp = max(1, c.sampler.coarse_samples // 4)
         with torch.no_grad():
-            coarse_edges = candidate_edges(near, far, t_split, c.coarse_samples - n_disp, n_disp)
+            coarse_edges = candidate_edges(near, far, t_split, c.sampler.coarse_samples - n_disp, n_disp)
             coarse_edges = stratified_edges(coarse_edges, self._jitter(
-                rays, c.coarse_samples - 1, generator, origins.device))
+                rays, c.sampler.coarse_samples - 1, generator, origins.device))
         sigma, rgb = self._field_all(coarse_edges, origins, dirs)
         coarse = self._render(sigma, rgb, coarse_edges, water)
         with torch.no_grad():
-            fine = sample_pdf(coarse_edges, coarse.weights.detach(), c.fine_samples, 0.0,
-                              self._jitter(rays, c.fine_samples - 1, generator, origins.device))
+            fine = sample_pdf(coarse_edges, coarse.weights.detach(), c.sampler.fine_samples, 0.0,
+                              self._jitter(rays, c.sampler.fine_samples - 1, generator, origins.device))
             t_edges = merge_edges(coarse_edges, fine)
         sigma, rgb = self._field_all(t_edges, origins, dirs)
         return ModelOutput(render=self._render(sigma, rgb, t_edges, water), t_edges=t_edges,
@@ -387,7 +285,7 @@ def _fibonacci_sphere(count: int, device) -> Tensor:
     return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=-1)
 
 
-def build_scene(frames, near: float, far: float, centre, scale: float, mean_rgb=None,
+def scene_from_frames(frames, near: float, far: float, centre, scale: float, mean_rgb=None,
                 min_fraction: float = 0.5) -> dict:
     """The ``scene`` dict of a model from the training frames of a camera file.
 

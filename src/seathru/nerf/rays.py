@@ -19,8 +19,14 @@ import torch
 from torch import Tensor
 
 
-def downscaled_size(width: int, height: int, downscale: int = 1) -> tuple[int, int]:
-    """(width, height) of an image rendered at ``downscale``."""
+def render_size(width: int, height: int, downscale: int = 1) -> tuple[int, int]:
+    """(width, height) of an image rendered at ``downscale``: each side floor-divided, at least
+    1 pixel (unlike ``seathru.radiometry.linearise.llff_downscaled_size``, which rounds).
+
+    Example::
+
+        render_size(641, 480, 2)  # (320, 240)
+    """
     if downscale < 1:
         raise ValueError(f"downscale must be >= 1, got {downscale}")
     return max(1, width // downscale), max(1, height // downscale)
@@ -29,7 +35,7 @@ def downscaled_size(width: int, height: int, downscale: int = 1) -> tuple[int, i
 def camera_rays_np(c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float, width: int,
                    height: int, downscale: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Rays of every pixel, row-major, float64: origins (H*W, 3), unit directions (H*W, 3)."""
-    out_w, out_h = downscaled_size(width, height, downscale)
+    out_w, out_h = render_size(width, height, downscale)
     u = (np.arange(out_w, dtype=np.float64) + 0.5) * downscale
     v = (np.arange(out_h, dtype=np.float64) + 0.5) * downscale
     uu, vv = np.meshgrid(u, v)  # (H, W), row-major like the image

@@ -8,7 +8,7 @@ decays its learning rate and reaches the finest grid: the model adapts to the ma
 ``elapsed`` is training time: the held-out evaluations for the log are not counted (they are
 also left out of ``wall_time_s`` in the log), the medium trial and checkpoints are.
 
-Medium (``--medium auto``): see ``Trainer.select_medium``. Losses: the paper's reconstruction
+Medium (``medium.mode=auto``): see ``Trainer.select_medium``. Losses: the paper's reconstruction
 loss on linear data, its transmittance prior, mip-NeRF 360's distortion loss (keeps each ray's
 object weight in one compact surface, so fog in the object field does not stand in for water).
 Density gradients are dropped where fewer than ``min_views`` training cameras look (what only
@@ -33,10 +33,13 @@ from typing import Callable
 
 import torch
 
-from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruction_loss, total_variation_3d,
+from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruction_loss,
+                                 total_variation_3d,
                                  transmittance_prior)
-from seathru.nerf.model import ModelConfig, SeaThruModel
+from seathru.nerf.config import TrainConfig, resolve_batch_rays
+from seathru.nerf.model import SeaThruModel
 from seathru.nerf.rays import RayBatch, RayDataset
+from seathru.nerf.water_fit import fit_water, ranged_groups, voxel_groups
 from seathru.errors import PipelineError
 
 CHECKPOINT_FORMAT = "seathru-train-checkpoint/1"
@@ -88,13 +91,14 @@ class Trainer:
     def __init__(self, model: SeaThruModel, data: RayDataset, test: RayBatch | None = None,
                  callbacks: TrainCallbacks | None = None, device="cpu", frames=None):
         self.model = model
-        self.config: ModelConfig = model.config
+        model.config = resolve_batch_rays(model.config, torch.device(device).type)
+        self.config: TrainConfig = model.config
         self.data = data
         self.test = test.to(device) if test is not None else None
         self.callbacks = callbacks or TrainCallbacks()
         self.device = torch.device(device)
         self.generator = torch.Generator().manual_seed(self.config.seed + 1)
-        # Held-out training rays (never sampled): they judge the medium model (--medium auto).
+        # Held-out training rays (never sampled): they judge the medium model (medium.mode=auto).
         self.probe = data.hold_out(max(256, min(self.config.eval_rays, len(data) // 20)),
                                    self.config.seed + 2)
         self.step = 0
@@ -103,9 +107,10 @@ class Trainer:
         self.rollbacks = 0
         self.log: list[dict] = []
         self.selection: dict | None = None
-        if self.config.medium != "auto":
-            self.selection = {"requested": self.config.medium, "chosen": self.config.medium,
-                              "reason": "set explicitly (--medium)"}
+        self.water_refits: list[dict] = []
+        if self.config.medium.mode != "auto":
+            self.selection = {"requested": self.config.medium.mode, "chosen": self.config.medium.mode,
+                              "reason": "set explicitly (medium.mode)"}
         self.optimizer = self._build_optimizer()
         self._snapshot = None
         self._eval_steps = log_spaced_steps(self.config.steps)
@@ -121,15 +126,15 @@ class Trainer:
         camera's image (the floaters in front of it): its gradient is dropped.
         """
         c = self.config
-        if frames is None or c.min_views <= 1 or c.field != "grid":
+        if frames is None or c.field.min_views <= 1 or c.field.kind != "grid":
             return None
         from seathru.nerf.fields import axis_resolution, grid_vertices
         from seathru.nerf.rays import view_counts
 
-        dims = axis_resolution(max(c.density_res) // 2, self.model.field.extent)
+        dims = axis_resolution(max(c.field.density_res) // 2, self.model.field.extent)
         points = grid_vertices(self.model.box, dims)
         counts = view_counts(points.reshape(-1, 3).numpy(), frames)
-        mask = torch.from_numpy(counts >= c.min_views).float().reshape(1, 1, *points.shape[:3])
+        mask = torch.from_numpy(counts >= c.field.min_views).float().reshape(1, 1, *points.shape[:3])
         return mask.to(self.device)
 
     def _mask_density_gradients(self) -> None:
@@ -147,11 +152,11 @@ class Trainer:
     # -------------------------------------------------------------------- optimiser
     def _groups(self) -> list[dict]:
         c, m = self.config, self.model
-        spec = [("density", m.field.grid_parameters(), c.lr * c.density_lr_scale),
-                ("features", m.field.feature_parameters(), c.lr),
+        spec = [("density", m.field.grid_parameters(), c.optim.lr * c.optim.density_lr_scale),
+                ("features", m.field.feature_parameters(), c.optim.lr),
                 ("networks", m.field.network_parameters() + m.medium.network_parameters(),
-                 c.lr * c.network_lr_scale),
-                ("medium", m.medium.global_parameters(), c.lr * c.medium_lr_scale)]
+                 c.optim.lr * c.optim.network_lr_scale),
+                ("medium", m.medium.global_parameters(), c.optim.lr * c.optim.medium_lr_scale)]
         return [{"params": params, "lr": lr, "base_lr": lr, "name": name}
                 for name, params, lr in spec if params]
 
@@ -175,8 +180,8 @@ class Trainer:
 
     def _set_lr(self, progress: float) -> None:
         c = self.config
-        warm = min(1.0, (self.step + 1) / max(1, c.warmup_steps))
-        decay = c.lr_final_ratio ** min(1.0, progress)
+        warm = min(1.0, (self.step + 1) / max(1, c.optim.warmup_steps))
+        decay = c.optim.lr_final_ratio ** min(1.0, progress)
         for group in self.optimizer.param_groups:
             group["lr"] = group["base_lr"] * warm * decay * self.lr_scale
 
@@ -192,7 +197,8 @@ class Trainer:
                 "step": self.step, "elapsed_s": self.elapsed_s, "rng": rng,
                 "log": [dict(row) for row in self.log], "lr_scale": self.lr_scale,
                 "rollbacks": self.rollbacks,
-                "selection": copy.deepcopy(self.selection)}
+                "selection": copy.deepcopy(self.selection),
+                "water_refits": copy.deepcopy(self.water_refits)}
 
     def load_checkpoint(self, ckpt: dict) -> None:
         self.model.load_state_dict_resizing(ckpt["model"])
@@ -209,6 +215,7 @@ class Trainer:
         self.lr_scale = float(ckpt["lr_scale"])
         self.rollbacks = int(ckpt["rollbacks"])
         self.selection = ckpt.get("selection")
+        self.water_refits = list(ckpt.get("water_refits", []))
 
     # -------------------------------------------------------------------- guard
     def _take_snapshot(self) -> None:
@@ -221,8 +228,8 @@ class Trainer:
         if self.rollbacks > self.config.nan_max_retries:
             raise PipelineError(
                 f"training diverged: {why} at step {self.step}, {self.rollbacks} times despite "
-                f"rolling back and lowering the learning rate (now {self.lr_scale:g} x --lr); "
-                "lower --lr, or check the input images for NaN/Inf values")
+                f"rolling back and lowering the learning rate (now {self.lr_scale:g} x optim.lr); "
+                "lower train.optim.lr, or check the input images for NaN/Inf values")
         self.lr_scale *= 0.5
         if self._snapshot is not None:
             self.model.load_state_dict_resizing(self._snapshot["model"])
@@ -237,7 +244,7 @@ class Trainer:
     def render_batch(self, rays: RayBatch, chunk: int = 8192) -> dict[str, torch.Tensor]:
         was_training = self.model.training
         self.model.eval()
-        outs = {"rgb": [], "backscatter": [], "opacity": [], "depth": []}
+        outs = {"rgb": [], "backscatter": [], "opacity": [], "depth": [], "depth_median": []}
         for start in range(0, len(rays), chunk):
             part = rays.subset(slice(start, start + chunk))
             r = self.model(part.origins, part.directions, part.near, part.far).render
@@ -245,6 +252,7 @@ class Trainer:
             outs["backscatter"].append(r.backscatter)
             outs["opacity"].append(r.opacity)
             outs["depth"].append(r.depth_mean)
+            outs["depth_median"].append(r.depth_median)
         self.model.train(was_training)
         return {k: torch.cat(v) for k, v in outs.items()}
 
@@ -276,7 +284,7 @@ class Trainer:
         self.model.refresh_occupancy()
 
     def select_medium(self) -> dict:
-        """``--medium auto``: no water (plain NeRF) or one global medium, the simplest that the
+        """``medium.mode=auto``: no water (plain NeRF) or one global medium, the simplest that the
         training views support.
 
         The global medium has been trained so far. If what it adds to the images is negligible
@@ -287,7 +295,7 @@ class Trainer:
         water stays only if it is better by ``auto_margin_db``; training continues from the
         branch chosen. View-dependent water is never picked automatically: a direction-
         dependent medium can also absorb errors of a half-trained scene (a far seabed not yet
-        reconstructed looks like direction-dependent water); ask for it with ``--medium view``.
+        reconstructed looks like direction-dependent water); ask for it with ``medium.mode=view``.
         """
         c = self.config
         rendered = self.render_batch(self.probe)
@@ -303,22 +311,22 @@ class Trainer:
         stats = {"backscatter_share": backscatter_share, "attenuation_over_depth": attenuation,
                  "scene_depth_median": depth, "object_hit_share": float(hit.float().mean()),
                  "fitted_global": water, "validation_rays": len(self.probe)}
-        thresholds = {"backscatter_share": c.auto_backscatter_share,
-                      "attenuation_over_depth": c.auto_attenuation,
-                      "margin_db": c.auto_margin_db}
+        thresholds = {"backscatter_share": c.medium.auto_backscatter_share,
+                      "attenuation_over_depth": c.medium.auto_attenuation,
+                      "margin_db": c.medium.auto_margin_db}
         decided_at = {"decided_at_step": self.step, "decided_at_progress": self._progress()}
-        if backscatter_share < c.auto_backscatter_share and attenuation < c.auto_attenuation:
+        if backscatter_share < c.medium.auto_backscatter_share and attenuation < c.medium.auto_attenuation:
             chosen = "off"
             reason = (f"fitted water is negligible: backscatter is {100 * backscatter_share:.2f}% "
-                      f"of the image (< {100 * c.auto_backscatter_share:g}%) and attenuation "
+                      f"of the image (< {100 * c.medium.auto_backscatter_share:g}%) and attenuation "
                       f"over the median scene depth ({depth:.3g}) is {100 * attenuation:.2f}% "
-                      f"(< {100 * c.auto_attenuation:g}%): clear water, plain NeRF")
+                      f"(< {100 * c.medium.auto_attenuation:g}%): clear water, plain NeRF")
             self.model.medium.set_mode(chosen)
         else:
             budget = c.max_minutes * 60.0 if c.max_minutes and c.max_minutes > 0 else math.inf
             rate = self.step / max(self.elapsed_s, 1e-6)
             horizon = min(float(c.steps), rate * budget)
-            trial = int(min(500, max(10, c.auto_trial_share * horizon)))
+            trial = int(min(500, max(10, c.medium.auto_trial_share * horizon)))
             start = self._state()
             results, ends = {}, {}
             for mode in ("off", "global"):
@@ -333,16 +341,16 @@ class Trainer:
                         self.step += 1
                 results[mode] = self._probe_psnr()
             gain = results["global"] - results["off"]
-            chosen = "global" if gain > c.auto_margin_db else "off"
+            chosen = "global" if gain > c.medium.auto_margin_db else "off"
             if chosen == "off":
                 self._restore(ends["off"])
                 self.model.medium.set_mode("off")
             stats.update({"trial_steps": trial, "validation_psnr_off": results["off"],
                           "validation_psnr_global": results["global"]})
-            verdict = (f"better by {gain:.2f} dB > {c.auto_margin_db:g} dB: one global medium "
-                       "(view-dependent water is only used when asked for with --medium view)"
+            verdict = (f"better by {gain:.2f} dB > {c.medium.auto_margin_db:g} dB: one global medium "
+                       "(view-dependent water is only used when asked for with medium.mode=view)"
                        if chosen == "global" else
-                       f"not better by more than {c.auto_margin_db:g} dB ({gain:+.2f} dB): "
+                       f"not better by more than {c.medium.auto_margin_db:g} dB ({gain:+.2f} dB): "
                        "no water, plain NeRF")
             reason = (f"trained {trial} steps with and without water from step "
                       f"{start['step']}: on {len(self.probe)} held-out training rays the water "
@@ -357,6 +365,53 @@ class Trainer:
                 "statistics": stats, "thresholds": thresholds}
 
     # -------------------------------------------------------------------- loop
+    @torch.no_grad()
+    def refit_water(self) -> dict:
+        """Refit the global water to the training images on the model's own geometry.
+
+        Early in training the water settles wherever it started and fog in the object field
+        makes up for the rest; on surfaces the model already places well (opacity above
+        ``medium.refit_opacity``), the same surface seen at several ranges pins the water
+        down (``seathru.nerf.water_fit``). The fitted values replace the medium's and its
+        optimiser state is reset. Returns a record of what was done (for selection.json).
+        """
+        c, model = self.config, self.model
+        record = {"step": self.step, "progress": round(self._progress(), 4)}
+        if model.medium.mode != "global":
+            return {**record, "skipped": f"medium mode is {model.medium.mode}"}
+        started = time.perf_counter()
+        rays = self.data.fixed_subset(c.medium.refit_rays, c.seed + 5 + len(self.water_refits))
+        rendered = self.render_batch(rays)
+        depth = rendered["depth_median"]
+        keep = (rendered["opacity"] > c.medium.refit_opacity) & torch.isfinite(depth)
+        if int(keep.sum()) < 1000:
+            return {**record, "skipped": f"only {int(keep.sum())} rays reach opaque surfaces"}
+        points = rays.origins[keep] + rays.directions[keep] * depth[keep, None]
+        diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
+        ranges, observed = depth[keep].double().cpu(), rays.rgb[keep].double().cpu()
+        ids, groups = voxel_groups(points.double().cpu(), c.medium.refit_voxel * diagonal)
+        ranged = ranged_groups(ranges, ids, groups)
+        if int(ranged.sum()) < 1000:
+            return {**record, "skipped": f"only {int(ranged.sum())} surface pixels are seen "
+                                         "over a spread of ranges"}
+        ids, groups = voxel_groups(points.double().cpu()[ranged],
+                                   c.medium.refit_voxel * diagonal)
+        before = model.water_parameters()
+        fit = fit_water(ranges[ranged], observed[ranged], ids, groups, before,
+                        c.medium.refit_steps, model.medium.colour_max)
+        model.medium.set_global(fit.sigma_attn, fit.sigma_bs, fit.c_med)
+        for param in model.medium.global_parameters():
+            self.optimizer.state.pop(param, None)
+        record.update({"pixels": fit.pixels, "groups": groups, "seconds":
+                       round(time.perf_counter() - started, 2),
+                       "before": {k: before[k] for k in ("sigma_attn", "sigma_bs", "c_med")},
+                       "after": {"sigma_attn": fit.sigma_attn, "sigma_bs": fit.sigma_bs,
+                                 "c_med": fit.c_med}})
+        self._say(f"step {self.step}: water refitted on {fit.pixels} surface pixels: "
+                  f"sigma_attn {_fmt(before['sigma_attn'])} -> {_fmt(fit.sigma_attn)}, "
+                  f"sigma_bs {_fmt(before['sigma_bs'])} -> {_fmt(fit.sigma_bs)} (normalised)")
+        return record
+
     def _progress(self) -> float:
         c = self.config
         budget = c.max_minutes * 60.0 if c.max_minutes and c.max_minutes > 0 else math.inf
@@ -371,19 +426,19 @@ class Trainer:
         out = self.model(batch.origins, batch.directions, batch.near, batch.far,
                          generator=self.generator)
         render = out.render
-        recon = reconstruction_loss(render.rgb, batch.rgb, c.recon_eps)
+        recon = reconstruction_loss(render.rgb, batch.rgb, c.loss.recon_eps)
         loss = recon
         if out.coarse is not None:
-            loss = loss + reconstruction_loss(out.coarse.rgb, batch.rgb, c.recon_eps)
-        ramp = min(1.0, max(0.0, (self._progress() - c.transmittance_prior_start) / 0.1)) \
-            if c.transmittance_prior_start > 0 else 1.0
-        if c.transmittance_prior_weight > 0 and ramp > 0:
-            loss = loss + ramp * c.transmittance_prior_weight * transmittance_prior(
+            loss = loss + reconstruction_loss(out.coarse.rgb, batch.rgb, c.loss.recon_eps)
+        ramp = min(1.0, max(0.0, (self._progress() - c.loss.transmittance_prior_start) / 0.1)) \
+            if c.loss.transmittance_prior_start > 0 else 1.0
+        if c.loss.transmittance_prior_weight > 0 and ramp > 0:
+            loss = loss + ramp * c.loss.transmittance_prior_weight * transmittance_prior(
                 render.transmittance[:, -1])
-        if c.distortion_weight > 0 and out.s_edges is not None:
-            loss = loss + c.distortion_weight * distortion_loss(render.weights, out.s_edges)
-        if c.density_tv_weight > 0 and c.field == "grid":
-            loss = loss + c.density_tv_weight * total_variation_3d(
+        if c.loss.distortion_weight > 0 and out.s_edges is not None:
+            loss = loss + c.loss.distortion_weight * distortion_loss(render.weights, out.s_edges)
+        if c.loss.density_tv_weight > 0 and c.field.kind == "grid":
+            loss = loss + c.loss.density_tv_weight * total_variation_3d(
                 self.model.field.density.raw, 8192, self.generator)
         return loss, mse(render.rgb.detach(), batch.rgb), {}
 
@@ -415,16 +470,20 @@ class Trainer:
                 self._swap_parameters(model.set_stage(stage))
                 model.refresh_occupancy()
                 self._take_snapshot()
-                if c.field == "grid":
+                if c.field.kind == "grid":
                     self._say(f"step {self.step}: grids upsampled to stage {stage} (density "
-                              f"{c.density_res[stage]}, planes {c.plane_res[stage]})")
-            if self.selection is None and progress >= c.auto_select_at:
+                              f"{c.field.density_res[stage]}, planes {c.field.plane_res[stage]})")
+            refits_due = sum(1 for at in c.medium.refit_at if progress >= at)
+            if len(self.water_refits) < refits_due:
+                self.water_refits.append(self.refit_water())
+                self._take_snapshot()
+            if self.selection is None and progress >= c.medium.auto_select_at:
                 self.selection = self.select_medium()
                 self._say(f"step {self.step}: medium '{self.selection['chosen']}': "
                           f"{self.selection['reason']}")
             self._set_lr(progress)
             model.set_progress(progress)
-            if self.step % c.occupancy_refresh_every == 0:
+            if self.step % c.sampler.occupancy_refresh_every == 0:
                 model.refresh_occupancy()
 
             if self._threads is not None:
@@ -558,6 +617,10 @@ class ThreadTuner:
             self.current = best
             torch.set_num_threads(best)
             self.times = {}
+
+
+def _fmt(values) -> str:
+    return "(" + ", ".join(f"{v:.3g}" for v in values) + ")"
 
 
 def _resample_like(value: torch.Tensor, shape) -> torch.Tensor:

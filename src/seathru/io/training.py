@@ -1,0 +1,118 @@
+"""Files of a training run: the frames' images, ``train_log.csv`` and resumable checkpoints.
+
+``train_log.csv`` columns: ``step, wall_time_s, loss, train_psnr, test_psnr`` (empty cell =
+not measured at that step). A checkpoint (``checkpoint.pt``, format
+``seathru-train-checkpoint/1``) is ``Trainer.checkpoint_state()`` plus the scene; it resumes
+only with the same settings (``TrainConfig.identity``) and the same scene.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from seathru.errors import PipelineError
+from seathru.io.atomic import atomic_path, write_text
+from seathru.io.cameras import CameraSet
+from seathru.io.images import read_image, read_mask
+
+LOG_COLUMNS = ("step", "wall_time_s", "loss", "train_psnr", "test_psnr")
+CHECKPOINT_NAME = "checkpoint.pt"
+
+
+def read_frame_images(cameras: CameraSet, frames) -> tuple[list[np.ndarray],
+                                                            list[np.ndarray | None]]:
+    """Linear RGB images (H, W, 3) and validity masks (H, W) or None of ``frames``, checked
+    against the camera file's sizes."""
+    images, masks = [], []
+    for frame in frames:
+        path = cameras.image_path(frame)
+        image = read_image(path)
+        if image.ndim != 3 or image.shape[2] < 3:
+            raise PipelineError(f"{path}: expected an RGB image, found shape {image.shape}")
+        image = image[..., :3]
+        if image.shape[:2] != (frame.height, frame.width):
+            raise PipelineError(f"{path}: image is {image.shape[1]}x{image.shape[0]} but "
+                                f"{cameras.root}/cameras.json says {frame.width}x{frame.height}")
+        mask = None
+        mask_path = cameras.mask_path(frame)
+        if mask_path is not None:
+            mask = read_mask(mask_path)
+            if mask.ndim == 3:
+                mask = mask[..., 0]
+            if mask.shape != image.shape[:2]:
+                raise PipelineError(f"{mask_path}: mask is {mask.shape[1]}x{mask.shape[0]}, its "
+                                    f"image {image.shape[1]}x{image.shape[0]}")
+        images.append(image)
+        masks.append(mask)
+    return images, masks
+
+
+def write_log_csv(path: Path, rows: list[dict]) -> None:
+    """``train_log.csv`` from the trainer's log rows (atomic)."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(LOG_COLUMNS)
+    for row in rows:
+        out = []
+        for key in LOG_COLUMNS:
+            value = row.get(key)
+            if value is None or (isinstance(value, float) and not math.isfinite(value)):
+                out.append("")
+            elif isinstance(value, float):
+                out.append(f"{value:.6g}")
+            else:
+                out.append(str(value))
+        writer.writerow(out)
+    write_text(path, buffer.getvalue())
+
+
+def save_checkpoint(path: Path, state: dict) -> None:
+    """Write a training checkpoint atomically (a kill never leaves half a file)."""
+    import torch
+
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+
+
+def load_checkpoint(path: Path, identity: dict, scene: dict, device) -> tuple[dict | None, str]:
+    """The checkpoint at ``path`` if it can be resumed with these settings and scene.
+
+    Args:
+        path: the checkpoint file (may be missing).
+        identity: ``TrainConfig.identity()`` of the run about to start.
+        scene: the model's scene dict of the run about to start.
+        device: where to load tensors.
+
+    Returns:
+        ``(checkpoint, "")`` when it can be resumed, else ``(None, why not)``.
+    """
+    import torch
+
+    from seathru.nerf.config import TrainConfig
+    from seathru.nerf.training import CHECKPOINT_FORMAT
+
+    if not Path(path).exists():
+        return None, "no checkpoint"
+    try:
+        ckpt = torch.load(path, map_location=device, weights_only=True)
+    except Exception as exc:  # truncated or foreign file
+        return None, f"unreadable ({exc})"
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+        return None, f"not a {CHECKPOINT_FORMAT} file"
+    try:
+        theirs = TrainConfig.from_dict(ckpt.get("config", {})).identity()
+    except PipelineError as exc:
+        return None, f"its settings are not valid now ({exc})"
+    changed = sorted(k for k in identity if theirs.get(k) != identity[k])
+    if changed:
+        return None, "settings changed: " + ", ".join(
+            f"{k} {theirs.get(k)!r} -> {identity[k]!r}" for k in changed[:6])
+    if json.dumps(ckpt.get("scene"), sort_keys=True) != json.dumps(scene, sort_keys=True):
+        return None, "the camera file (scene box or normalisation) changed"
+    return ckpt, ""

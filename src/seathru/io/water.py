@@ -1,0 +1,191 @@
+"""Water parameter files: the train step's fitted ``water.json`` and the simulator's truth.
+
+``train/water.json`` (format ``seathru-water/1``; files written before the format key existed are
+read too)::
+
+    {"format": "seathru-water/1",
+     "mode": "global",                  # off | global | view (the medium model)
+     "units": "...",                    # how to read the numbers
+     "scale": 0.15,                     # normalised units per source unit (camera file)
+     "sigma_attn": [r, g, b],           # 1/(source unit) = normalised * scale
+     "sigma_bs": [r, g, b],             # 1/(source unit)
+     "c_med": [r, g, b],                # linear radiance of the training images
+     "normalised": {"sigma_attn", "sigma_bs", "c_med"},   # 1/(normalised unit): the source
+     "per_source_unit": {"sigma_attn", "sigma_bs"},
+     # mode "view" only: the values above are means over training rays, and
+     "note": "...", "normalised_min": {...}, "min": {...}, "normalised_max": {...}, "max": {...}}
+
+The ``normalised`` section (and, for view-dependent water, ``normalised_min`` / ``_max``) and
+``scale`` are the data; every per-source-unit number is derived from them on writing.
+
+``simulate/truth/water.json`` (written by the simulate step): ``sigma_attn``, ``sigma_bs``
+(1/m), ``c_med``, ``units``, ``preset``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+from seathru.errors import PipelineError
+from seathru.io.atomic import write_json
+from seathru.io.jsonfile import read_json
+
+WATER_FORMAT = "seathru-water/1"
+WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
+SIGMA_KEYS = ("sigma_attn", "sigma_bs")
+UNITS = ("sigma_attn and sigma_bs: 1/(source unit) = normalised value * scale (metres for "
+         "simulated data); c_med: linear radiance of the training images")
+VIEW_NOTE = ("view-dependent water: values are the mean over training rays; min and max over "
+             "the same rays")
+MODES = ("off", "global", "view")
+
+
+@dataclass(frozen=True)
+class WaterValues:
+    """Per-channel (R, G, B) water parameters in one unit system."""
+
+    sigma_attn: tuple[float, float, float]
+    sigma_bs: tuple[float, float, float]
+    c_med: tuple[float, float, float]
+
+    @classmethod
+    def from_mapping(cls, data: Any, where: str) -> WaterValues:
+        """From ``{"sigma_attn": [3], "sigma_bs": [3], "c_med": [3]}``; ValueError naming
+        ``where`` and the key when a value is missing or not three numbers."""
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{where} is not an object")
+        return cls(**{key: _triple(data.get(key), f"{where}.{key}") for key in WATER_KEYS})
+
+    def as_dict(self) -> dict[str, list[float]]:
+        return {key: list(getattr(self, key)) for key in WATER_KEYS}
+
+    def scaled(self, sigma_factor: float) -> WaterValues:
+        """The coefficients multiplied by ``sigma_factor`` (a change of length unit); c_med
+        unchanged."""
+        return WaterValues(*(tuple(float(v) * sigma_factor for v in getattr(self, key))
+                             for key in SIGMA_KEYS), self.c_med)
+
+
+def _triple(value: Any, where: str) -> tuple[float, float, float]:
+    if (not isinstance(value, (list, tuple)) or len(value) != 3
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+        raise ValueError(f"{where} must be a list of 3 numbers, found {value!r}")
+    return tuple(float(v) for v in value)
+
+
+@dataclass(frozen=True)
+class WaterReport:
+    """The trained model's water (``train/water.json``).
+
+    Attributes:
+        mode: the medium model, ``off``, ``global`` or ``view``.
+        scale: normalised scene units per source unit (the camera file's ``scale``).
+        normalised: coefficients per normalised unit; for ``view``, means over training rays.
+        normalised_min, normalised_max: ``view`` only, extremes over the same rays.
+    """
+
+    mode: str
+    scale: float
+    normalised: WaterValues
+    normalised_min: WaterValues | None = None
+    normalised_max: WaterValues | None = None
+    format: str = WATER_FORMAT
+
+    @classmethod
+    def from_parameters(cls, params: Mapping[str, Any], scale: float) -> WaterReport:
+        """From ``SeaThruModel.water_parameters(directions)``: ``mode``, ``sigma_attn``,
+        ``sigma_bs``, ``c_med`` (lists of 3, normalised units) and, for ``view``, ``min`` and
+        ``max`` dicts of the same keys.
+
+        Example::
+
+            report = WaterReport.from_parameters(model.water_parameters(directions),
+                                                 float(cameras.scale))
+            write_water(out / "water.json", report)
+        """
+        bounds = {}
+        if params["mode"] == "view":
+            bounds = {f"normalised_{b}": WaterValues.from_mapping(params[b], b)
+                      for b in ("min", "max")}
+        return cls(mode=str(params["mode"]), scale=float(scale),
+                   normalised=WaterValues.from_mapping(params, "parameters"), **bounds)
+
+    @property
+    def per_source_unit(self) -> WaterValues:
+        """Coefficients per unit of the source reconstruction (metres for simulated data)."""
+        return self.normalised.scaled(self.scale)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The file's JSON layout (see the module docstring)."""
+        source = self.per_source_unit
+        data: dict[str, Any] = {
+            "format": self.format, "mode": self.mode, "units": UNITS, "scale": self.scale,
+            "sigma_attn": list(source.sigma_attn), "sigma_bs": list(source.sigma_bs),
+            "c_med": list(self.normalised.c_med),
+            "normalised": self.normalised.as_dict(),
+            "per_source_unit": {k: v for k, v in source.as_dict().items() if k in SIGMA_KEYS},
+        }
+        if self.mode == "view" and self.normalised_min and self.normalised_max:
+            data["note"] = VIEW_NOTE
+            for bound, values in (("min", self.normalised_min), ("max", self.normalised_max)):
+                data[f"normalised_{bound}"] = values.as_dict()
+                data[bound] = values.scaled(self.scale).as_dict()
+        return data
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str = "water.json") -> WaterReport:
+        """Parse the JSON layout; PipelineError naming ``source`` when it is malformed."""
+        try:
+            if not isinstance(data, Mapping):
+                raise ValueError("expected a JSON object")
+            version = data.get("format", WATER_FORMAT)
+            if version != WATER_FORMAT:
+                raise ValueError(f"expected format {WATER_FORMAT!r}, found {version!r}")
+            mode = data.get("mode")
+            if mode not in MODES:
+                raise ValueError(f"mode must be one of {', '.join(MODES)}, found {mode!r}")
+            scale = data.get("scale")
+            if isinstance(scale, bool) or not isinstance(scale, (int, float)) or scale <= 0:
+                raise ValueError(f"scale must be a positive number, found {scale!r}")
+            bounds = {f"normalised_{b}": WaterValues.from_mapping(data[f"normalised_{b}"],
+                                                                  f"normalised_{b}")
+                      for b in ("min", "max") if f"normalised_{b}" in data}
+            return cls(mode=mode, scale=float(scale),
+                       normalised=WaterValues.from_mapping(data.get("normalised"), "normalised"),
+                       **bounds)
+        except ValueError as exc:
+            raise PipelineError(f"{source}: not a valid water file ({exc}); re-run the 'train' "
+                                "step") from None
+
+
+def write_water(path: str | os.PathLike, report: WaterReport) -> None:
+    """Write ``water.json`` atomically."""
+    write_json(path, report.to_dict())
+
+
+def read_water(path: str | os.PathLike, *, missing_ok: bool = False) -> WaterReport | None:
+    """Read a train step's ``water.json``; None when it is missing and ``missing_ok``.
+
+    Raises:
+        PipelineError: naming the file when it is missing (unless ``missing_ok``), not JSON or
+        malformed.
+    """
+    data = read_json(path, missing_ok=missing_ok, hint="run the 'train' step")
+    return None if data is None else WaterReport.from_dict(data, str(path))
+
+
+def read_truth_water(path: str | os.PathLike) -> WaterValues:
+    """The simulator's true water (``truth/water.json``), coefficients in 1/m.
+
+    Raises:
+        PipelineError: naming the file when it is missing, not JSON or malformed.
+    """
+    data = read_json(path, hint="truth water parameters are written by the 'simulate' step; "
+                                "re-run it")
+    try:
+        return WaterValues.from_mapping(data, "truth")
+    except ValueError as exc:
+        raise PipelineError(f"{path}: not a valid truth water file ({exc}); re-run the "
+                            "'simulate' step") from None

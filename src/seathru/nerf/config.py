@@ -1,0 +1,242 @@
+"""Every setting of the model and its training, as nested typed sections.
+
+``TrainConfig`` is the train step's ``Settings``: its flags (``seathru train --help``), the
+``train:`` section of config/config.yaml and the sheet's ``train.<section>.<key>`` options all
+derive from these dataclasses (``seathru.settings``). Defaults are the fast CPU model; the paper
+baseline is ``field.kind=mlp``, ``sampler.kind=hierarchical``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from seathru import settings
+from seathru.settings import section, setting
+
+
+@dataclass
+class FieldConfig:
+    """Object field: a density voxel grid and tri-plane colour, refined coarse to fine in stages."""
+
+    kind: Literal["grid", "mlp"] = setting(
+        "grid", help="grid (fast voxel density + tri-plane colour) or mlp (the paper's PE MLP)")
+    density_res: list[int] = setting(default_factory=lambda: [96, 128, 160],
+                                     help="density grid cells along the longest axis, per stage")
+    plane_res: list[int] = setting(default_factory=lambda: [128, 256, 384],
+                                   help="finest tri-plane resolution, per stage")
+    stage_starts: list[float] = setting(default_factory=lambda: [0.08, 0.25],
+                                        help="training progress at which stages 2, 3, ... start")
+    plane_coarse_res: int = setting(48, help="resolution of the coarse tri-plane level")
+    density_coarse_res: int = setting(32, help="resolution of the coarse density level")
+    plane_channels: int = setting(8, help="feature channels per tri-plane")
+    decoder_hidden: int = setting(32, help="width of the colour decoder")
+    view_dependent_colour: bool = setting(False, help="object colour depends on view direction")
+    colour_max: float = setting(1.5, help="largest object colour (raised to 2x the 99.9th "
+                                          "percentile of the training images)")
+    init_opacity: float = setting(0.05, help="initial object opacity across the scene box")
+    min_views: int = setting(2, help="density is only learnt where this many views look")
+    mlp_width: int = setting(256, help="MLP field: hidden width")
+    mlp_depth: int = setting(8, help="MLP field: hidden layers")
+
+
+@dataclass
+class SamplerConfig:
+    """Where along each ray the object field is evaluated."""
+
+    kind: Literal["occupancy", "hierarchical"] = setting(
+        "occupancy", help="occupancy (density-grid histogram) or hierarchical (the paper's "
+                          "coarse + fine)")
+    samples_per_ray: int = setting(16, help="object samples per ray (occupancy sampler)")
+    candidates_linear: int = setting(64, help="candidate bins linear in the scene box")
+    candidates_disparity: int = setting(16, help="candidate bins linear in 1/t beyond the box")
+    uniform_mix: float = setting(0.1, help="final share of uniformly placed samples")
+    uniform_mix_start: float = setting(1.0, help="share of uniform samples at the start")
+    uniform_mix_until: float = setting(0.3, help="progress by which the share has fallen to "
+                                                 "uniform_mix")
+    occupancy_dilate: int = setting(1, help="dilation of the cached occupancy grid (cells)")
+    occupancy_lookup: Literal["exact", "grid"] = setting(
+        "exact", help="density lookup for the candidates: exact (trilinear) or grid (cached, "
+                      "faster, less accurate)")
+    occupancy_refresh_every: int = setting(8, help="steps between cached occupancy refreshes")
+    colour_weight_threshold: float = setting(1e-4, help="colour is decoded only for samples "
+                                                        "weighing more than this")
+    coarse_samples: int = setting(128, help="hierarchical sampler: coarse samples per ray")
+    fine_samples: int = setting(32, help="hierarchical sampler: fine samples per ray")
+
+
+@dataclass
+class MediumConfig:
+    """The water: attenuation, backscatter and veiling light per colour channel."""
+
+    mode: Literal["auto", "off", "global", "view"] = setting(
+        "auto", help="auto (the simplest model the images support), off (clear water / air), "
+                     "global (one water per scene), view (depends on view direction, as the "
+                     "paper)")
+    sigma_init: float = setting(0.0, help="initial attenuation and backscatter per normalised "
+                                          "unit; 0 = 0.5 / typical range")
+    render_method: Literal["exact", "paper"] = setting(
+        "exact", help="exact (closed-form integral) or paper (the paper's discretisation)")
+    water_before: bool = setting(True, help="integrate the water before the first sample")
+    water_after: bool = setting(True, help="integrate the water after the last sample")
+    refit_at: list[float] = setting(
+        default_factory=lambda: [0.15, 0.4],
+        help="training progress at which the water is refitted to the images on the model's "
+             "own depth (variable projection); empty = never")
+    refit_rays: int = setting(65536, help="training rays rendered for a water refit")
+    refit_opacity: float = setting(0.9, help="a refit uses rays whose object opacity exceeds "
+                                             "this (surfaces, not fog or open water)")
+    refit_voxel: float = setting(0.005, help="refit: surface points are grouped in voxels of "
+                                             "this share of the scene box diagonal")
+    refit_steps: int = setting(300, help="most L-BFGS iterations of a water refit")
+    auto_select_at: float = setting(0.8, help="auto: progress at which the model is chosen")
+    auto_trial_share: float = setting(0.05, help="auto: share of the run each trial trains")
+    auto_margin_db: float = setting(0.5, help="auto: water must beat no water by this many dB "
+                                              "on held-out rays")
+    auto_backscatter_share: float = setting(0.01, help="auto: backscatter below this share of "
+                                                       "the image is negligible")
+    auto_attenuation: float = setting(0.02, help="auto: attenuation over the scene depth below "
+                                                 "this is negligible")
+
+
+@dataclass
+class LossConfig:
+    """Loss terms and their weights."""
+
+    transmittance_prior_weight: float = setting(1e-4, help="weight of -log P(T_obj), pushing "
+                                                           "object transmittance to 0 or 1")
+    transmittance_prior_start: float = setting(0.0, help="progress at which the prior starts "
+                                                         "(ramped in over 0.1)")
+    distortion_weight: float = setting(0.01, help="weight of the distortion loss")
+    density_tv_weight: float = setting(0.0, help="weight of total variation on the density grid")
+    recon_eps: float = setting(1e-3, help="eps of the relative reconstruction loss")
+
+
+@dataclass
+class OptimConfig:
+    """Adam with warm-up and decay."""
+
+    lr: float = setting(0.05, help="base learning rate of the feature grids")
+    density_lr_scale: float = setting(4.0, help="density grid learning rate / lr")
+    network_lr_scale: float = setting(0.1, help="decoder / MLP learning rate / lr")
+    medium_lr_scale: float = setting(1.0, help="water parameters' learning rate / lr")
+    warmup_steps: int = setting(30, help="linear warm-up steps")
+    lr_final_ratio: float = setting(0.05, help="final learning rate / initial")
+
+
+# Settings that do not change the model being trained: a resumed run may change them.
+RUNTIME_KEYS = ("max_minutes", "log_every", "checkpoint_every", "eval_rays", "snapshot_every",
+                "nan_max_retries", "device", "progress")
+
+
+@dataclass
+class TrainConfig:
+    """Training of the SeaThru-NeRF model: object field, sampler, water, losses, optimiser and
+    the run's budget. Stops at ``steps`` or after ``max_minutes``, whichever comes first."""
+
+    field: FieldConfig = section(FieldConfig)
+    sampler: SamplerConfig = section(SamplerConfig)
+    medium: MediumConfig = section(MediumConfig)
+    loss: LossConfig = section(LossConfig)
+    optim: OptimConfig = section(OptimConfig)
+    steps: int = setting(6000, help="maximum optimisation steps")
+    max_minutes: float = setting(3.0, help="wall-time budget in minutes; training stops "
+                                           "gracefully and writes its outputs (0 = no limit)")
+    batch_rays: int | None = setting(None, help="rays per step; automatic: 1024 on CPU, 4096 on "
+                                                "CUDA (benchmarks/results/training_h200*.md)")
+    seed: int = setting(0, help="random seed")
+    device: str = setting("auto", help="auto | cpu | cuda[:N]")
+    eval_rays: int = setting(4096, help="held-out test pixels for the PSNR in the log")
+    log_every: int = setting(50, help="steps between train_log rows")
+    checkpoint_every: int = setting(500, help="steps between checkpoints (0 = only at the end)")
+    snapshot_every: int = setting(50, help="steps between in-memory snapshots (NaN rollback)")
+    nan_max_retries: int = setting(5, help="rollbacks after NaN/Inf before giving up")
+    progress: bool = setting(True, help="show a progress bar")
+
+    def to_dict(self) -> dict:
+        return settings.to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "TrainConfig":
+        """From a nested dict (model.pt, checkpoints) or the flat dict of seathru-model/1."""
+        if not any(isinstance(v, dict) for v in data.values()):
+            data = _nest_flat_v1(data)
+        return settings.from_mapping(cls, data)
+
+    def identity(self) -> dict:
+        """The settings that must match for a checkpoint to be resumed."""
+        return {k: v for k, v in settings.flatten(self.to_dict()).items()
+                if k not in RUNTIME_KEYS}
+
+    def validate(self) -> None:
+        f, s = self.field, self.sampler
+        if f.kind == "mlp" and s.kind == "occupancy":
+            raise ValueError("the MLP field has no density grid: use sampler.kind=hierarchical")
+        if len(f.density_res) != len(f.plane_res) or \
+                len(f.stage_starts) != len(f.density_res) - 1:
+            raise ValueError("field.density_res and field.plane_res need one entry per stage and "
+                             "field.stage_starts one per stage after the first")
+        for name, value in (("steps", self.steps), ("sampler.samples_per_ray", s.samples_per_ray),
+                            ("batch_rays", self.batch_rays or 1)):
+            if value < 1:
+                raise ValueError(f"{name} must be >= 1, got {value}")
+        if self.optim.lr <= 0:
+            raise ValueError(f"optim.lr must be > 0, got {self.optim.lr}")
+
+
+_V1_RENAMED = {"field": "field.kind", "sampler": "sampler.kind", "medium": "medium.mode",
+               "medium_sigma_init": "medium.sigma_init"}
+
+
+def _nest_flat_v1(flat: dict[str, Any]) -> dict[str, Any]:
+    """The flat ModelConfig dict of seathru-model/1 files as nested sections; unknown keys of
+    old files are dropped."""
+    sections = {name: {f.name for f in dataclasses.fields(cls)}
+                for name, cls in _SECTION_TYPES.items()}
+    top = {f.name for f in dataclasses.fields(TrainConfig)} - set(sections)
+    dotted = {}
+    for key, value in flat.items():
+        if key in _V1_RENAMED:
+            dotted[_V1_RENAMED[key]] = value
+            continue
+        owner = next((name for name, keys in sections.items() if key in keys), None)
+        if owner is not None:
+            dotted[f"{owner}.{key}"] = value
+        elif key in top:
+            dotted[key] = value
+    return settings.nest(dotted)
+
+
+_SECTION_TYPES = {"field": FieldConfig, "sampler": SamplerConfig, "medium": MediumConfig,
+                  "loss": LossConfig, "optim": OptimConfig}
+
+
+# Rays per step when batch_rays is automatic. On an H200 1024 rays ran 64 steps/s and 4096 rays
+# 52 steps/s (4x the rays for 20% fewer steps), reaching the paper configuration's PSNR 22x
+# instead of 15x sooner; on CPU the step time grows with the batch.
+CPU_BATCH_RAYS = 1024
+GPU_BATCH_RAYS = 4096
+
+
+def resolve_batch_rays(config: TrainConfig, device_type: str) -> TrainConfig:
+    """``config`` with an automatic ``batch_rays`` set for the device type (``cpu``, ``cuda``)."""
+    if config.batch_rays is not None:
+        return config
+    rays = GPU_BATCH_RAYS if device_type == "cuda" else CPU_BATCH_RAYS
+    return dataclasses.replace(config, batch_rays=rays)
+
+
+# The paper-faithful configuration (Levy et al. 2023): PE MLP 8x256, hierarchical 128 + 32
+# samples, view-dependent water and colour, the paper's discretisation with no water beyond the
+# samples, Adam at 5e-4. Used as the baseline of the training benchmark.
+PAPER_OVERRIDES: dict = {
+    "field": {"kind": "mlp", "view_dependent_colour": True, "min_views": 0},
+    "sampler": {"kind": "hierarchical", "coarse_samples": 128, "fine_samples": 32},
+    "medium": {"mode": "view", "render_method": "paper", "water_before": False,
+               "water_after": False},
+    "loss": {"transmittance_prior_weight": 1e-4, "distortion_weight": 0.0},
+    "optim": {"lr": 5e-4, "network_lr_scale": 1.0, "medium_lr_scale": 1.0},
+    "batch_rays": 1024,
+    "steps": 1000000,
+}
