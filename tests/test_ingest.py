@@ -20,6 +20,7 @@ from skimage.transform import downscale_local_mean
 from seathru.radiometry import linearise
 from seathru.errors import PipelineError
 from seathru.io import raw as rawio
+from seathru.io.image_folder import resolve_input, select_files
 from seathru.steps import ingest
 
 rawpy = pytest.importorskip("rawpy")
@@ -398,26 +399,26 @@ def test_file_selection_kinds_duplicates_and_hints(tmp_path):
         (folder / name).write_bytes(b"raw")  # selection looks at names only
     cv2.imwrite(str(folder / "IMG_1.jpg"), np.zeros((4, 4, 3), np.uint8))
     (folder / "IMG_1.xmp").write_text("sidecar")
-    selected, rejected, detection = ingest.select_files(folder, "auto")
+    selected, rejected, detection = select_files(folder, "auto")
     assert [(p.name, n, k) for p, n, k in selected] == [("IMG_1.dng", "IMG_1", "raw"),
                                                         ("IMG_2.nef", "IMG_2", "raw")]
     assert [r["file"] for r in rejected] == ["IMG_1.jpg"] and detection["ignored"] == ["IMG_1.xmp"]
 
-    selected, rejected, _ = ingest.select_files(folder, "srgb")
+    selected, rejected, _ = select_files(folder, "srgb")
     assert [p.name for p, _, _ in selected] == ["IMG_1.jpg"] and len(rejected) == 2
 
     pngs = tmp_path / "pngs"
     pngs.mkdir()
     cv2.imwrite(str(pngs / "a.png"), np.zeros((4, 4, 3), np.uint16))
     tifffile.imwrite(pngs / "a.tif", np.zeros((4, 4, 3), np.uint16))
-    selected, rejected, detection = ingest.select_files(pngs, "auto")
+    selected, rejected, detection = select_files(pngs, "auto")
     assert detection["kind"] == "linear" and [p.name for p, _, _ in selected] == ["a.png"]
     assert "duplicate" in rejected[0]["reason"] and rejected[0]["file"] == "a.tif"
 
     with pytest.raises(PipelineError, match="subfolders with images: mixed, pngs"):
-        ingest.select_files(tmp_path, "auto")
+        select_files(tmp_path, "auto")
     with pytest.raises(PipelineError, match="subfolders: mixed, pngs"):
-        ingest.resolve_input(tmp_path, "images_wb")
+        resolve_input(tmp_path, "images_wb")
 
 
 # --- pure helpers ---------------------------------------------------------------------------
@@ -465,6 +466,30 @@ def test_camera_gains_and_stat_sampling():
     samples = linearise.sample_pixels(image, 10_000)
     assert 5_000 < len(samples) <= 10_000
     np.testing.assert_array_equal(samples[0], image[0, 0])
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 5000), st.integers(1, 5000), st.integers(1, 16))
+def test_llff_downscaled_size_rounds_each_side(width, height, factor):
+    w, h = linearise.llff_downscaled_size(width, height, factor)
+    for size, full in ((w, width), (h, height)):
+        assert size >= 1 and abs(size - full / factor) <= 0.5 + 1e-9 or (size == 1 and
+                                                                         full < factor)
+
+
+def test_matching_grey_converts_any_depth_and_equalises():
+    rng = np.random.default_rng(4)
+    bgr = rng.integers(0, 256, size=(64, 80, 3), dtype=np.uint8)
+    # OpenCV's BT.601 weights on BGR input, float64 reference
+    reference = np.round(bgr[..., 0] * 0.114 + bgr[..., 1] * 0.587 + bgr[..., 2] * 0.299)
+    for image in (bgr, bgr.astype(np.uint16) * 257, bgr / 255.0):
+        grey = linearise.matching_grey(image)
+        assert grey.dtype == np.uint8 and grey.shape == (64, 80)
+        assert np.abs(grey.astype(float) - reference).max() <= 1
+    dull = (100 + bgr[..., 0] // 16).astype(np.uint8)  # values 100-115: low contrast
+    equalised = linearise.matching_grey(dull, clahe_clip=2.0, clahe_tiles=4)
+    assert int(np.ptp(equalised)) > 2 * int(np.ptp(dull))
+    np.testing.assert_array_equal(linearise.matching_grey(dull), dull)
 
 
 # --- round trip through the simulator -------------------------------------------------------

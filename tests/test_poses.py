@@ -17,13 +17,13 @@ from hypothesis import strategies as st
 from seathru.cli import build_parser
 from seathru.radiometry.colour import srgb_to_linear
 from seathru.geometry.poses import (FAR_MARGIN, NEAR_MARGIN, compare_trajectories,
-                                   denormalise_c2w, depth_bounds, frustum_corners, range_bounds, llff_to_opencv,
+                                   complete_bounds, denormalise_c2w, depth_bounds, frustum_corners, range_bounds, llff_to_opencv,
                                    opencv_to_llff, opencv_to_opengl, opengl_to_opencv,
                                    rotation_angle_deg, umeyama, unit_ball_normalisation)
 from seathru.errors import PipelineError
 from seathru.io.cameras import read_cameras
 from seathru.io.colmap import make_camera, undistortion
-from seathru.steps.poses import focal_from_manifest
+from seathru.geometry.intrinsics import focal_from_metadata
 
 THREADS = "2"
 
@@ -183,6 +183,17 @@ def test_compare_trajectories_finds_a_displaced_camera():
     assert compare_trajectories(estimate, reference).max_relative_position_error > 0.02
 
 
+def test_complete_bounds_applies_overrides_and_fills_gaps_with_the_scene():
+    # the scene's bounds come from the frames that have both (frame 0 only)
+    near, far, filled = complete_bounds([0.5, None, 2.0], [4.0, 9.0, None])
+    assert (near, far, filled) == ([0.5, 0.5, 2.0], [4.0, 9.0, 4.0], [False, True, True])
+    assert complete_bounds([None, None], [3.0, None], near_override=1.0) == (
+        [1.0, 1.0], [3.0, 3.0], [False, True])
+    assert complete_bounds([None], [None], 0.2, 7.0) == ([0.2], [7.0], [False])
+    with pytest.raises(ValueError):
+        complete_bounds([None, 1.0], [2.0, None])
+
+
 # -- undistortion ----------------------------------------------------------------------------
 
 def test_undistortion_maps_rays_onto_the_pinhole_camera():
@@ -219,14 +230,14 @@ def test_pinhole_cameras_are_not_resampled():
 def test_focal_from_manifest_reads_exif_fields():
     per_image = {"images": [{"name": "a", "exif": {"FocalLengthIn35mmFilm": "28"}},
                             {"name": "b", "exif": {"FocalLengthIn35mmFilm": 28}}]}
-    focal, how = focal_from_manifest(per_image, 600, 400)
+    focal, how = focal_from_metadata(per_image, 600, 400)
     assert focal == pytest.approx(28 / math.hypot(36, 24) * math.hypot(600, 400))
     assert "35 mm" in how
-    focal, _ = focal_from_manifest({"focal_length_mm": "12/1", "sensor_width_mm": 24.0}, 800, 600)
+    focal, _ = focal_from_metadata({"focal_length_mm": "12/1", "sensor_width_mm": 24.0}, 800, 600)
     assert focal == pytest.approx(400.0)
     mixed = {"images": [{"focal_length_px": 500}, {"focal_length_px": 700}]}
-    assert focal_from_manifest(mixed, 800, 600)[0] is None
-    assert focal_from_manifest({"settings": {}}, 800, 600)[0] is None
+    assert focal_from_metadata(mixed, 800, 600)[0] is None
+    assert focal_from_metadata({"settings": {}}, 800, 600)[0] is None
 
 
 # -- readers ---------------------------------------------------------------------------------

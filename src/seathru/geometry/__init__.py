@@ -1,3 +1,8 @@
-"""Camera geometry shared by pose recovery, dataset readers and evaluation: axis conventions,
-similarity alignment, trajectory comparison, near/far bounds, scene normalisation. Pure numpy.
+"""Camera geometry shared by pose recovery, dataset readers and evaluation. Pure numpy.
+
+- ``poses``: axis conventions, similarity alignment, trajectory comparison, near/far bounds,
+  scene normalisation;
+- ``intrinsics``: focal lengths known before SfM (user, EXIF) and the initial COLMAP camera;
+- ``quality``: the SfM quality policy (gate, plan of attempts, agreement between models,
+  which model to keep).
 """

@@ -14,6 +14,7 @@ Camera axis conventions used in this module (columns of the c2w rotation):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -244,3 +245,35 @@ def denormalise_c2w(c2w: np.ndarray, centre: np.ndarray, scale: float) -> np.nda
     out = np.array(c2w, dtype=np.float64)
     out[..., :3, 3] = out[..., :3, 3] / scale + np.asarray(centre, np.float64)
     return out
+
+
+def complete_bounds(near: Sequence[float | None], far: Sequence[float | None],
+                    near_override: float | None = None, far_override: float | None = None
+                    ) -> tuple[list[float], list[float], list[bool]]:
+    """Per-frame depth bounds with overrides applied and gaps filled with the scene's.
+
+    Args:
+        near, far: ``N`` per-frame bounds (None where the source has none).
+        near_override, far_override: replace every frame's bound when given.
+
+    Returns:
+        ``(near, far, filled)``: the bounds, and per frame whether a missing bound was taken
+        from the scene (smallest near, largest far over the frames that have both).
+
+    Raises:
+        ValueError: no frame has both bounds.
+
+    Example::
+
+        >>> complete_bounds([1.0, None], [5.0, None])
+        ([1.0, 1.0], [5.0, 5.0], [False, True])
+    """
+    near = [near_override if near_override is not None else n for n in near]
+    far = [far_override if far_override is not None else f for f in far]
+    known = [(n, f) for n, f in zip(near, far) if n is not None and f is not None]
+    if not known:
+        raise ValueError("no near/far bounds")
+    scene_near, scene_far = min(n for n, _ in known), max(f for _, f in known)
+    filled = [n is None or f is None for n, f in zip(near, far)]
+    return ([scene_near if n is None else n for n in near],
+            [scene_far if f is None else f for f in far], filled)

@@ -22,10 +22,10 @@ from seathru.geometry.poses import (FAR_MARGIN, NEAR_MARGIN, depth_bounds, llff_
                                    opengl_to_opencv, point_depths)
 from seathru.errors import PipelineError
 from seathru.io.colmap import make_camera, model_images, read_model
+from seathru.io.images import list_images
 
 log = logging.getLogger(__name__)
 
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".bmp", ".webp")
 # Image folders of the LLFF / SeaThru-NeRF layout, in order of preference; images_<N> come last,
 # smallest N first.
 LLFF_IMAGE_FOLDERS = ("images_wb", "Images_wb", "images")
@@ -45,15 +45,6 @@ class PosedDataset:
     views: list[PosedView]
     source: str
     notes: dict = field(default_factory=dict)
-
-
-def list_images(folder: Path) -> list[Path]:
-    """Image files of a folder (any common extension, case-insensitive), sorted by name."""
-    if not folder.is_dir():
-        return []
-    return sorted(p for p in folder.iterdir()
-                  if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS
-                  and not p.name.startswith("."))
 
 
 # -- LLFF / SeaThru-NeRF ---------------------------------------------------------------------
@@ -248,3 +239,24 @@ def _read_ply_points(path: Path) -> np.ndarray | None:
     if model.num_points3D() == 0:
         return None
     return np.array([point.xyz for point in model.points3D.values()])
+
+
+#: ``--source`` values that read existing poses, by reader.
+READERS = ("llff", "colmap-model", "nerfstudio")
+
+
+def read_posed_dataset(source: str, source_dir: Path | None,
+                       fallback_names: list[str] | None = None) -> PosedDataset:
+    """Poses that already exist: ``source`` is one of :data:`READERS`; ``fallback_names``: the
+    image names an LLFF folder without images is taken to hold, in order."""
+    if source_dir is None:
+        raise PipelineError(f"--source {source} needs --source-dir")
+    if not source_dir.exists():
+        raise PipelineError(f"{source_dir}: --source-dir not found")
+    if source == "llff":
+        return read_llff(source_dir, fallback_names=fallback_names)
+    if source == "colmap-model":
+        return read_colmap_model(source_dir)
+    if source == "nerfstudio":
+        return read_nerfstudio(source_dir)
+    raise ValueError(f"unknown source {source!r}; readers are {', '.join(READERS)}")

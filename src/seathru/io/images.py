@@ -20,6 +20,18 @@ import tifffile
 from seathru.errors import PipelineError
 from seathru.io.atomic import atomic_path
 
+#: Extensions (lower case) :func:`list_images` takes as images.
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".bmp", ".webp")
+
+
+def list_images(folder: Path) -> list[Path]:
+    """Image files of a folder (any common extension, case-insensitive), sorted by name."""
+    if not folder.is_dir():
+        return []
+    return sorted(p for p in folder.iterdir()
+                  if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS
+                  and not p.name.startswith("."))
+
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an image as float32. 8-bit files map to [0, 1], 16-bit to [0, 1], float as stored."""

@@ -30,7 +30,7 @@ import math
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
 import cv2
 import numpy as np
@@ -50,9 +50,14 @@ RAW_EXTENSIONS = frozenset(
     ".sr2 .srf .srw .sti .x3f".split())
 #: Encoded image extensions (kind decided by bit depth for PNG and TIFF).
 ENCODED_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff"})
-KINDS = ("raw", "linear", "srgb")
+#: What a file holds: camera RAW, linear 16-bit/float, or sRGB-encoded 8-bit.
+ImageKind = Literal["raw", "linear", "srgb"]
+#: The kinds in order of preference when a folder mixes them (RAW+JPEG pairs: raw wins).
+KINDS: tuple[str, ...] = get_args(ImageKind)
 
-SUPPORTED_DEMOSAIC = ("LINEAR", "VNG", "PPG", "AHD", "DCB", "DHT", "AAHD")
+#: LibRaw demosaic algorithms (rawpy.DemosaicAlgorithm names) in every rawpy build.
+Demosaic = Literal["LINEAR", "VNG", "PPG", "AHD", "DCB", "DHT", "AAHD"]
+SUPPORTED_DEMOSAIC: tuple[str, ...] = get_args(Demosaic)
 
 
 class DecodeError(Exception):

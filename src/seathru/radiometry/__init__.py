@@ -1,4 +1,5 @@
-"""Radiometry: colour transfer functions (``colour``) and the ingest maths that brings decoded
-camera values to one linear scale: exposure, white balance, clipping masks, resizing
-(``linearise``). Pure numpy; file decoding lives in ``seathru.io.raw``.
+"""Radiometry: colour transfer functions (``colour``), the per-image maths that brings decoded
+camera values to one linear scale: exposure, white balance, clipping masks, resizing, matching
+copies (``linearise``), and the dataset-level exposure and white-balance estimate
+(``dataset_transform``). Pure numpy; file decoding lives in ``seathru.io.raw``.
 """

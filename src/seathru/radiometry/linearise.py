@@ -253,8 +253,16 @@ def fit_size(width: int, height: int, max_size: int | None) -> tuple[int, int]:
     return max(1, round(width * scale)), max(1, round(height * scale))
 
 
-def downscaled_size(width: int, height: int, factor: int) -> tuple[int, int]:
-    """LLFF ``images_N`` size: each side divided by N and rounded, at least 1 pixel."""
+def llff_downscaled_size(width: int, height: int, factor: int) -> tuple[int, int]:
+    """LLFF ``images_N`` size: each side divided by N and rounded, at least 1 pixel.
+
+    Not the render size (``seathru.nerf.rays``), which floors.
+
+    Example::
+
+        >>> llff_downscaled_size(1001, 750, 4)
+        (250, 188)
+    """
     return max(1, round(width / factor)), max(1, round(height / factor))
 
 
@@ -296,6 +304,33 @@ def matching_exposure(samples: np.ndarray, target: float = MATCHING_TARGET_MEDIA
 def matching_image(linear: np.ndarray, scale: float) -> np.ndarray:
     """sRGB-encoded values in [0, 1] for feature matching: ``srgb(clip(scale * linear))``."""
     return linear_to_srgb(np.clip(linear * np.float32(scale), 0.0, 1.0)).astype(np.float32)
+
+
+def matching_grey(image: np.ndarray, clahe_clip: float | None = None,
+                  clahe_tiles: int = 8) -> np.ndarray:
+    """The 8-bit grey copy SIFT runs on, contrast-equalised (CLAHE) for murky water.
+
+    COLMAP turns colour into grey before SIFT anyway, so the equalisation runs on grey.
+
+    Args:
+        image: ``(H, W)`` or ``(H, W, C)`` in OpenCV's BGR(A) channel order (as ``cv2.imread``
+            gives it): uint8, uint16 (top 8 bits kept) or float in [0, 1].
+        clahe_clip: CLAHE clip limit; None for no equalisation.
+        clahe_tiles: CLAHE tiles per side.
+
+    Returns:
+        ``(H, W)`` uint8.
+    """
+    if image.dtype == np.uint16:
+        image = (image // 257).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        image = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+    if image.ndim == 3:
+        image = cv2.cvtColor(np.ascontiguousarray(image[..., :3]), cv2.COLOR_BGR2GRAY)
+    if clahe_clip is not None:
+        image = cv2.createCLAHE(clipLimit=clahe_clip,
+                                tileGridSize=(clahe_tiles, clahe_tiles)).apply(image)
+    return image
 
 
 # --- sanity of decoded data -----------------------------------------------------------------

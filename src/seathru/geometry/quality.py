@@ -1,0 +1,271 @@
+"""The quality policy of structure from motion: which attempts to run, when a model passes, which
+one to keep. Pure Python/numpy; the COLMAP runs themselves are in ``seathru.io.sfm``.
+
+A model must register enough images with a low mean reprojection error (:class:`QualityGate`)
+and, with the cross-check on, be confirmed by an independent model (the other mapper on the same
+matches, or either mapper on the other matcher's matches) agreeing on the poses after a
+similarity alignment: repeated texture can give a wrong model with every image registered and a
+low reprojection error, and two mappers rarely fail the same way. Until that happens the
+alternatives of :func:`plan_attempts` are tried in turn.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Callable, Literal, get_args
+
+import numpy as np
+
+from seathru.geometry.poses import compare_trajectories
+
+log = logging.getLogger(__name__)
+
+Matcher = Literal["sequential", "exhaustive"]
+Mapper = Literal["incremental", "global"]
+MATCHERS: tuple[str, ...] = get_args(Matcher)
+MAPPERS: tuple[str, ...] = get_args(Mapper)
+
+
+@dataclass(frozen=True)
+class SfmSettings:
+    """Everything that changes a COLMAP run; recorded as is in the report."""
+
+    camera_model: str = "SIMPLE_RADIAL"
+    single_camera: bool = True
+    matcher: str = "sequential"
+    overlap: int = 10
+    mapper: str = "incremental"
+    max_image_size: int = 1600
+    max_features: int = 8192
+    threads: int = -1
+    seed: int = 0
+    focal_px: float | None = None   # initial focal length at the matching images' size
+    refine_focal: bool = True
+
+
+@dataclass
+class SfmAttempt:
+    """One mapping attempt and what it gave (a ``report.json`` ``attempts`` entry)."""
+
+    settings: dict
+    role: str = "first"             # first | cross-check | retry
+    registered: int = 0
+    total: int = 0
+    mean_reprojection_px: float | None = None
+    num_points: int = 0
+    mean_track_length: float | None = None
+    seconds: float = 0.0
+    passed: bool = False
+    unregistered: list[str] = field(default_factory=list)
+    error: str | None = None
+    agreement: dict | None = None   # the confirming comparison, for the model kept
+    comparisons: list[dict] = field(default_factory=list)  # with earlier independent models
+    note: str | None = None
+
+    @property
+    def registered_fraction(self) -> float:
+        return self.registered / self.total if self.total else 0.0
+
+    def to_dict(self) -> dict:
+        data = asdict(self)
+        data["registered_fraction"] = self.registered_fraction
+        return data
+
+    def sort_key(self) -> tuple:
+        """Better attempts sort higher: gate passed, more images, lower reprojection error."""
+        error = self.mean_reprojection_px if self.mean_reprojection_px is not None else np.inf
+        return (self.passed, self.registered, -error)
+
+
+@dataclass(frozen=True)
+class QualityGate:
+    """What a model must satisfy to be accepted without retrying.
+
+    The reprojection error limit applies at the resolution SIFT ran at; ``reprojection_scale``
+    (matching image size / SIFT size, >= 1, :func:`reprojection_scale`) converts it to the
+    model's pixels. Two independent models must agree on the camera poses within
+    ``max_disagreement`` of the camera extent and ``max_rotation_disagreement_deg``.
+    """
+
+    min_registered_fraction: float = 0.8
+    max_reprojection_px: float = 1.0
+    reprojection_scale: float = 1.0
+    max_disagreement: float = 0.01
+    max_rotation_disagreement_deg: float = 1.0
+
+    def check(self, attempt: SfmAttempt) -> bool:
+        return (attempt.registered > 0
+                and attempt.registered_fraction >= self.min_registered_fraction
+                and attempt.mean_reprojection_px is not None
+                and attempt.mean_reprojection_px
+                <= self.max_reprojection_px * self.reprojection_scale)
+
+    def agree(self, agreement: dict | None) -> bool:
+        return (agreement is not None
+                and agreement["max_centre_deviation"] <= self.max_disagreement
+                and agreement["max_rotation_deviation_deg"] <= self.max_rotation_disagreement_deg)
+
+
+def reprojection_scale(image_size: tuple[int, int] | None, max_image_size: int) -> float:
+    """Matching image pixels per SIFT pixel (>= 1): COLMAP reports reprojection errors in the
+    matching images' pixels, the gate's limit is meant at the size SIFT ran at.
+
+    ``image_size``: ``(width, height)`` of every matching image (None: sizes differ);
+    ``max_image_size``: SIFT's longest side (<= 0: full size).
+    """
+    longest = max(image_size) if image_size is not None else 0
+    return max(1.0, longest / max_image_size) if max_image_size > 0 and longest else 1.0
+
+
+# -- the plan --------------------------------------------------------------------------------
+
+def alternatives(settings: SfmSettings, cross_check: bool = True,
+                 global_available: bool = True) -> list[SfmSettings]:
+    """Independent ways to map the same images, the user's first.
+
+    The other mapper on the same matches, then the other matcher (exhaustive for sequential and
+    vice versa) with each mapper. Seeds are not a source of independent evidence: with the same
+    matches COLMAP's mappers nearly always return the same model whatever the seed.
+    ``global_available``: whether this COLMAP has the global mapper.
+    """
+    mappers = [settings.mapper]
+    if global_available and cross_check:
+        mappers.append("global" if settings.mapper == "incremental" else "incremental")
+    elif settings.mapper == "incremental" and global_available:
+        mappers.append("global")
+    other_matcher = "exhaustive" if settings.matcher == "sequential" else "sequential"
+    return [replace(settings, matcher=matcher, mapper=mapper)
+            for matcher in (settings.matcher, other_matcher) for mapper in mappers]
+
+
+def plan_attempts(settings: SfmSettings, retry: bool = True, cross_check: bool = True,
+                  global_available: bool = True) -> list[SfmSettings]:
+    """The attempts to run, in order, until one is accepted (without ``retry`` only the user's
+    matcher; without either, the user's settings alone)."""
+    plan = alternatives(settings, cross_check, global_available)
+    if not retry:
+        plan = [p for p in plan if p.matcher == settings.matcher] if cross_check else [settings]
+    return plan
+
+
+def independent(a: SfmSettings, b: SfmSettings) -> bool:
+    """Two attempts are independent evidence when matcher or mapper differ."""
+    return (a.matcher, a.mapper) != (b.matcher, b.mapper)
+
+
+# -- agreement between models ----------------------------------------------------------------
+
+def pose_agreement(poses: dict[str, np.ndarray], other: dict[str, np.ndarray]) -> dict | None:
+    """How far two models of the same images disagree, after a similarity alignment.
+
+    Args:
+        poses, other: ``(4, 4)`` camera-to-world poses by image name.
+
+    Returns:
+        ``common_images``, the largest camera-centre deviation as a fraction of the camera
+        extent (``max_centre_deviation``, largest distance between two camera centres) and the
+        largest rotation deviation in degrees (``max_rotation_deviation_deg``), over the images
+        both hold; None when fewer than 3 are shared or the cameras coincide.
+    """
+    common = sorted(set(poses) & set(other))
+    if len(common) < 3:
+        return None
+    comparison = compare_trajectories(np.array([other[n] for n in common]),
+                                      np.array([poses[n] for n in common]))
+    if comparison.extent <= 0:
+        return None
+    return {"common_images": len(common),
+            "max_centre_deviation": float(comparison.position_errors.max() / comparison.extent),
+            "max_rotation_deviation_deg": float(comparison.rotation_errors_deg.max())}
+
+
+def describe_agreement(agreement: dict | None) -> str:
+    if agreement is None:
+        return "fewer than 3 images in common"
+    return (f"camera centres {agreement['max_centre_deviation']:.2%} of the camera extent, "
+            f"rotations {agreement['max_rotation_deviation_deg']:.2f} deg apart")
+
+
+# -- choosing the model ----------------------------------------------------------------------
+
+@dataclass
+class SfmRun:
+    """An attempt with the settings it ran and its model (opaque here)."""
+
+    settings: SfmSettings
+    attempt: SfmAttempt
+    model: Any
+
+
+def _candidates(runs: list[SfmRun], matcher: str) -> list[SfmRun]:
+    passed = [run for run in runs if run.attempt.passed]
+    return [run for run in passed if run.settings.matcher == matcher] or passed
+
+
+def confirmed_run(runs: list[SfmRun], comparisons: dict[tuple[int, int], dict | None],
+                  gate: QualityGate, matcher: str,
+                  compare: Callable[[Any, Any], dict | None]) -> SfmRun | None:
+    """The earliest candidate that an independent gate-passing model agrees with.
+
+    Candidates are the gate-passing runs on the user's ``matcher`` (for ordered dive sets the
+    sequential matches hold fewer false pairs), or any gate-passing run when none is.
+    ``comparisons`` caches ``compare(model_i, model_j)`` (see :func:`pose_agreement`) by run
+    indices ``(i, j)``, ``i < j``; each new comparison is also recorded on run ``j``'s attempt.
+    The confirmed attempt gets its ``agreement`` and ``note``.
+    """
+    passed = [run for run in runs if run.attempt.passed]
+    for candidate in _candidates(runs, matcher):
+        for witness in passed:
+            if witness is candidate or not independent(candidate.settings, witness.settings):
+                continue
+            i, j = sorted((runs.index(candidate), runs.index(witness)))
+            if (i, j) not in comparisons:
+                agreement = compare(runs[i].model, runs[j].model)
+                comparisons[(i, j)] = agreement
+                runs[j].attempt.comparisons.append({"with_attempt": i + 1, **(agreement or {})})
+                if not gate.agree(agreement):
+                    log.warning("attempts %d and %d disagree on the poses (%s)", i + 1, j + 1,
+                                describe_agreement(agreement))
+            if gate.agree(comparisons[(i, j)]):
+                candidate.attempt.agreement = comparisons[(i, j)]
+                candidate.attempt.note = (
+                    f"confirmed by attempt {runs.index(witness) + 1} ({witness.settings.matcher}"
+                    f" matching, {witness.settings.mapper} mapping)")
+                return candidate
+    return None
+
+
+def unconfirmed_run(runs: list[SfmRun], matcher: str, cross_check: bool) -> SfmRun:
+    """The run to keep when none is confirmed: the candidate with the lowest mean reprojection
+    error (marked as failing the gate when a cross-check was asked for), else the best run."""
+    candidates = _candidates(runs, matcher)
+    if not candidates:
+        return max(runs, key=lambda run: run.attempt.sort_key())
+    best = min(candidates, key=lambda run: run.attempt.mean_reprojection_px)
+    if cross_check:
+        best.attempt.passed = False
+        best.attempt.note = ("no independent model agreed with it; kept as the candidate with the "
+                             "lowest mean reprojection error")
+        log.warning("no independent COLMAP model confirmed the poses; keeping attempt %d "
+                    "unconfirmed", runs.index(best) + 1)
+    return best
+
+
+def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total: int,
+                    gate: QualityGate) -> str:
+    """Why no model registers enough images: every attempt, and what to try next."""
+    registered = chosen.registered if chosen else 0
+    tried = "; ".join(
+        f"{a.settings['matcher']} matching + {a.settings['mapper']} mapping, seed "
+        f"{a.settings['seed']}: {a.registered}/{a.total}" + (f" ({a.error})" if a.error else "")
+        for a in attempts)
+    unregistered = chosen.unregistered if chosen else []
+    listed = ", ".join(unregistered[:20]) + (" ..." if len(unregistered) > 20 else "")
+    return (f"COLMAP registered only {registered} of {total} images in its largest model "
+            f"(need {gate.min_registered_fraction:.0%}). Tried: {tried}. Try --matcher "
+            f"exhaustive for an unordered set or a larger --overlap for an ordered transect, "
+            f"more features (--max-features 16384), a larger --max-image-size, a known focal "
+            f"length (--focal-px or --focal-mm with --sensor-width-mm), or remove images that "
+            f"do not overlap the others"
+            + (f". Unregistered: {listed}" if unregistered else ""))

@@ -1,0 +1,295 @@
+"""The ingest step's output: ``manifest.json`` (format ``seathru-ingest/1``) and the folder layout.
+
+Folder (``results/<dataset>/ingest``)::
+
+    linear/<stem>.tiff      float32 linear RGB, exposure-normalised and white-balanced
+    linear_<N>/<stem>.tiff  the same, area-averaged down by N (LLFF images_N)
+    masks/<stem>.png        validity mask (255 valid), masks_<N>/ likewise
+    matching/<stem>.png     8-bit sRGB-encoded copy for feature matching
+    manifest.json           :class:`IngestManifest`
+
+``manifest.json`` is written by :func:`write_manifest` (the ingest step, through
+:func:`build_manifest`) and read by :func:`read_manifest`; :class:`IngestFolder` is how later
+steps (``poses``) find the images.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence, TypedDict
+
+import numpy as np
+
+from seathru.errors import PipelineError
+from seathru.io.atomic import write_json
+from seathru.io.contract import check_contract
+from seathru.io.jsonfile import read_json
+from seathru.io.image_folder import RejectedFile
+from seathru.io.images import list_images
+from seathru.radiometry.linearise import MATCHING_TARGET_MEDIAN
+
+FORMAT = "seathru-ingest/1"
+RAW_DECODING = ("LibRaw: per-channel black subtracted, / (white - black), unit WB, raw colour, "
+                "gamma (1, 1), 16-bit, no auto brightness, adjust_maximum_thr 0, orientation "
+                "from the file")
+EXPOSURE_DEFINITION = ("E = t * ISO / N^2 over fields_used; factor = reference / E, reference = "
+                       "median E; factor 1 where E is unknown")
+MATCHING_ENCODING = "sRGB transfer of clip(scale * linear), 8-bit PNG"
+_HINT = "run the 'ingest' step"
+
+
+class DownscaledImage(TypedDict):
+    linear: str                 # linear_<N>/<stem>.tiff
+    mask: str                   # masks_<N>/<stem>.png
+    width: int
+    height: int
+
+
+class ManifestImage(TypedDict):
+    name: str                   # file stem, the key of every later stage
+    source: str                 # file name in the input folder
+    source_path: str            # resolved path of the input file
+    kind: str                   # raw | linear | srgb
+    width: int                  # of linear/<stem>.tiff
+    height: int
+    source_size: list[int]      # [width, height] as decoded
+    linear: str                 # paths relative to the manifest's folder
+    mask: str
+    matching: str
+    matching_size: list[int]
+    downscaled: dict[str, DownscaledImage]  # by factor N, as a string
+    exposure_time: float | None  # seconds; None = not recorded
+    iso: float | None
+    f_number: float | None
+    exposure_metadata_source: dict[str, str]  # field -> exif | libraw
+    exposure_value: float | None  # t * ISO / N^2 over the fields used; None when unknown
+    exposure_factor: float      # the image was multiplied by this
+    saturated_fraction: float
+    black_clipped_fraction: float
+    clipped_fraction: float     # invalid in the mask (after dilation and resizing)
+    camera_wb_gains: list[float] | None
+    colour_matrix: list[list[float]] | None
+    decoder: dict[str, Any]     # decoder facts (raw size, black/white levels, flip, ...)
+    warnings: list[str]
+
+
+class ManifestInput(TypedDict):
+    folder: str
+    given: str
+    subdir: str | None
+    kind: str
+    requested: str
+    counts: dict[str, int]
+    note: str
+    ignored: list[str]
+
+
+class ManifestSettings(TypedDict):
+    kind: str
+    colour: str
+    wb: str
+    wb_percentile: float
+    demosaic: str
+    half_size: bool
+    exposure_normalise: bool
+    saturation_threshold: float
+    mask_dilation: int
+    max_size: int
+    matching_max_size: int
+    downscale: list[int]
+    min_images: int
+    stats_pixels_per_image: int
+    workers: int
+    raw_decoding: str
+
+
+class _ExposureSummary(TypedDict):
+    normalised: bool
+    reference: float | None
+    fields_used: list[str]
+
+
+class ExposureSummary(_ExposureSummary, total=False):
+    definition: str             # present when normalised
+
+
+class WhiteBalanceSummary(TypedDict):
+    method: str
+    gains: list[float]
+    gains_space: str
+    post_matrix_gains: list[float] | None
+    percentile: float | None
+    percentile_levels: list[float] | None
+    camera_gains: list[float] | None
+    sampled_pixels: int
+
+
+class MatchingSummary(TypedDict):
+    exposure_scale: float
+    target_median: float
+    encoding: str
+
+
+class IngestManifest(TypedDict):
+    format: str                 # FORMAT
+    input: ManifestInput
+    settings: ManifestSettings
+    colour_space: str           # camera raw | srgb-linear | as stored
+    values: str                 # what 1.0 means
+    exposure: ExposureSummary
+    white_balance: WhiteBalanceSummary
+    matching: MatchingSummary
+    warnings: list[str]
+    images: list[ManifestImage]
+    rejected: list[RejectedFile]
+
+
+# --- writing --------------------------------------------------------------------------------
+
+def _floats(values: Any) -> list[float] | None:
+    return None if values is None else [float(v) for v in values]
+
+
+def build_manifest(settings: Any, *, folder: Path, given: Path, subdir: str | None,
+                   detection: dict[str, Any], decoded: Sequence[Any], finished: Sequence[Any],
+                   transform: Any, rejected: list[RejectedFile], downscale: Sequence[int],
+                   stats_pixels_per_image: int, workers: int) -> IngestManifest:
+    """The manifest of one ingest run.
+
+    Args:
+        settings: the ingest step's ``Settings``.
+        folder, given, subdir, detection: the input folder, as resolved, given and selected
+            (``seathru.io.image_folder.select_files``).
+        decoded, finished: per image, ``seathru.io.decode_pool.Decoded`` and ``Finished``.
+        transform: the ``seathru.radiometry.dataset_transform.DatasetTransform``.
+        rejected, downscale, stats_pixels_per_image, workers: as used.
+    """
+    values = transform.exposure_values
+    images: list[ManifestImage] = []
+    for i, (d, f) in enumerate(zip(decoded, finished)):
+        matrix = transform.matrices[i]
+        images.append({
+            "name": d.name, "source": Path(d.source).name,
+            "source_path": str(Path(d.source).resolve()), "kind": d.kind,
+            "width": d.width, "height": d.height, "source_size": d.source_size,
+            "linear": f"linear/{d.name}.tiff", "mask": f"masks/{d.name}.png",
+            "matching": f"matching/{d.name}.png", "matching_size": f.matching_size,
+            "downscaled": f.downscaled,
+            "exposure_time": d.exposure["exposure_time"], "iso": d.exposure["iso"],
+            "f_number": d.exposure["f_number"],
+            "exposure_metadata_source": d.exposure["source"],
+            "exposure_value": None if not np.isfinite(values[i]) else float(values[i]),
+            "exposure_factor": float(transform.factors[i]),
+            "saturated_fraction": d.saturated_fraction,
+            "black_clipped_fraction": d.black_clipped_fraction,
+            "clipped_fraction": d.invalid_fraction,
+            "camera_wb_gains": d.camera_wb.tolist() if d.camera_wb is not None else None,
+            "colour_matrix": matrix.tolist() if matrix is not None else None,
+            "decoder": d.metadata,
+            "warnings": d.warnings,
+        })
+    norm = transform.exposure
+    exposure: ExposureSummary = (
+        {"normalised": True, "reference": norm.reference, "fields_used": list(norm.fields_used),
+         "definition": EXPOSURE_DEFINITION} if norm is not None else
+        {"normalised": False, "reference": None, "fields_used": []})
+    kind = detection["kind"]
+    percentile = settings.wb == "percentile"
+    return {
+        "format": FORMAT,
+        "input": {"folder": str(folder.resolve()), "given": str(given), "subdir": subdir,
+                  **detection},
+        "settings": {
+            "kind": settings.kind, "colour": settings.colour, "wb": settings.wb,
+            "wb_percentile": settings.wb_percentile, "demosaic": settings.demosaic,
+            "half_size": settings.half_size, "exposure_normalise": settings.exposure_normalise,
+            "saturation_threshold": settings.saturation_threshold,
+            "mask_dilation": settings.mask_dilation, "max_size": settings.max_size,
+            "matching_max_size": settings.matching_max_size, "downscale": list(downscale),
+            "min_images": settings.min_images, "stats_pixels_per_image": stats_pixels_per_image,
+            "workers": workers, "raw_decoding": RAW_DECODING,
+        },
+        "colour_space": transform.colour_space,
+        "values": (f"linear; the dataset's {settings.wb_percentile}th percentile of each channel "
+                   "is 1.0" if percentile else
+                   "linear; 1.0 = the white level (top code) at the dataset's median exposure, "
+                   "times the white balance gains"),
+        "exposure": exposure,
+        "white_balance": {
+            "method": transform.wb_method,
+            "gains": _floats(transform.wb_gains),
+            "gains_space": "camera raw" if kind == "raw" else "as stored",
+            "post_matrix_gains": _floats(transform.post_gains),
+            "percentile": settings.wb_percentile if percentile else None,
+            "percentile_levels": _floats(transform.percentile_levels),
+            "camera_gains": _floats(transform.camera_gains),
+            "sampled_pixels": transform.sampled_pixels,
+        },
+        "matching": {"exposure_scale": transform.matching_scale,
+                     "target_median": MATCHING_TARGET_MEDIAN, "encoding": MATCHING_ENCODING},
+        "warnings": transform.warnings,
+        "images": images,
+        "rejected": rejected,
+    }
+
+
+def write_manifest(path: str | Path, manifest: IngestManifest) -> None:
+    """Write ``manifest.json`` atomically (checked against the contract first)."""
+    check_contract(manifest, IngestManifest, path, FORMAT)
+    write_json(path, manifest)
+
+
+# --- reading --------------------------------------------------------------------------------
+
+def read_manifest(path: str | Path, strict: bool = True) -> IngestManifest:
+    """The manifest at ``path``.
+
+    ``strict=False`` returns any valid JSON as it is: for readers that only look for optional
+    metadata in it (``poses`` looks for focal lengths) and accept a hand-written file.
+
+    Raises:
+        PipelineError: naming the file, when it is absent, not JSON, or (strict) not of format
+            ``seathru-ingest/1`` or missing a key.
+    """
+    data = read_json(path, hint=_HINT)
+    if strict:
+        check_contract(data, IngestManifest, path, FORMAT, _HINT)
+    return data
+
+
+def _by_stem(folder: Path) -> dict[str, Path]:
+    files: dict[str, Path] = {}
+    for path in list_images(folder):
+        if path.stem in files:
+            raise PipelineError(f"{folder}: two images share the name {path.stem!r} "
+                                f"({files[path.stem].name}, {path.name})")
+        files[path.stem] = path
+    return files
+
+
+class IngestFolder:
+    """The images of an ingest output folder, by stem.
+
+    ``linear``: ``linear_folder`` (``linear`` or a downscaled ``linear_<N>``); ``masks``: the
+    masks at that size; ``matching`` and ``matching_masks``: the full-size matching copies and
+    masks; ``manifest``: ``manifest.json`` as read with ``strict=False`` (None when absent).
+    """
+
+    def __init__(self, root: Path, linear_folder: str = "linear"):
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise PipelineError(f"{self.root}: ingest folder not found; run the 'ingest' step")
+        self.linear_dir = self.root / linear_folder
+        self.linear = _by_stem(self.linear_dir)
+        if not self.linear:
+            raise PipelineError(f"{self.linear_dir}: no linear images; run the 'ingest' step or "
+                                f"pick another --linear-folder")
+        self.matching = _by_stem(self.root / "matching")
+        # linear_<N>/ comes with masks_<N>/ at the same size
+        suffix = linear_folder[len("linear"):] if linear_folder.startswith("linear") else ""
+        masks_dir = self.root / f"masks{suffix}"
+        self.masks_dir = masks_dir if masks_dir.is_dir() else self.root / "masks"
+        self.masks = _by_stem(self.masks_dir)
+        self.matching_masks = _by_stem(self.root / "masks")  # full size, like matching/
+        manifest = self.root / "manifest.json"
+        self.manifest = read_manifest(manifest, strict=False) if manifest.exists() else None

@@ -1,0 +1,139 @@
+"""The poses step's ``report.json`` (format ``seathru-poses-report/1``): what was tried and
+measured while recovering the cameras.
+
+Every report is a :class:`PoseReport` (source, settings, the output summary, timing). A COLMAP run
+(``--source colmap``) adds :class:`ColmapDetails` (the quality gate, every attempt, unregistered
+images): :class:`ColmapPoseReport`; reading existing poses adds the reader's notes:
+:class:`ReaderPoseReport`. Written by :func:`write_pose_report`, read by :func:`read_pose_report`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, TypedDict, Union
+
+from seathru.io.atomic import write_json
+from seathru.io.contract import check_contract
+from seathru.io.jsonfile import read_json
+
+FORMAT = "seathru-poses-report/1"
+_HINT = "run the 'poses' step"
+
+
+class ClaheRecord(TypedDict):
+    enabled: bool
+    clip: float
+    tiles: int
+
+
+class GateRecord(TypedDict):
+    """``seathru.geometry.quality.QualityGate`` as used."""
+
+    min_registered_fraction: float
+    max_reprojection_px: float
+    reprojection_scale: float
+    max_disagreement: float
+    max_rotation_disagreement_deg: float
+
+
+class AttemptRecord(TypedDict):
+    """``seathru.geometry.quality.SfmAttempt.to_dict()``."""
+
+    settings: dict[str, Any]     # SfmSettings: matcher, mapper, seed, focal_px, ...
+    role: str                    # first | cross-check | retry
+    registered: int
+    total: int
+    registered_fraction: float
+    mean_reprojection_px: float | None
+    num_points: int
+    mean_track_length: float | None
+    seconds: float
+    passed: bool
+    unregistered: list[str]
+    error: str | None
+    agreement: dict[str, Any] | None
+    comparisons: list[dict[str, Any]]
+    note: str | None
+
+
+class ColmapDetails(TypedDict):
+    clahe: ClaheRecord
+    initial_focal_px: float | None
+    initial_focal_source: str
+    extraction_masks: bool
+    global_mapping_available: bool
+    gate: GateRecord
+    gate_passed: bool
+    attempts: list[AttemptRecord]
+    chosen_attempt: int          # index into attempts, from 1
+    registered: int
+    total: int
+    mean_reprojection_px: float | None
+    unregistered: list[str]      # image stems
+    left_out_not_in_both_folders: list[str]
+
+
+class ReaderDetails(TypedDict):
+    reader_notes: dict[str, Any]
+
+
+class NormalisationRecord(TypedDict):
+    centre: list[float]
+    scale: float
+    method: str
+
+
+class OutputSummary(TypedDict):
+    """What was written next to the report (cameras.json, images/, masks/)."""
+
+    frames: int
+    test_frames: int
+    normalisation: NormalisationRecord
+    near: float
+    far: float
+    source_cameras: list[dict[str, Any]]  # distinct source cameras: model, width, height, params
+    undistorted: bool
+    posed_without_linear_image: list[str]
+    linear_images_without_pose: list[str]
+
+
+class PoseReport(OutputSummary):
+    format: str                  # FORMAT
+    source: str                  # colmap | llff | nerfstudio (cameras.json's source)
+    ingest: str                  # the ingest folder
+    arguments: dict[str, Any]    # every flag and setting, as used
+    seconds: float
+
+
+class ColmapPoseReport(PoseReport, ColmapDetails):
+    """The report of ``--source colmap``."""
+
+
+class ReaderPoseReport(PoseReport, ReaderDetails):
+    """The report of ``--source llff | colmap-model | nerfstudio``."""
+
+
+AnyPoseReport = Union[ColmapPoseReport, ReaderPoseReport]
+
+
+def _contract(data: Any) -> type:
+    return ReaderPoseReport if isinstance(data, dict) and "reader_notes" in data \
+        else ColmapPoseReport
+
+
+def write_pose_report(path: str | Path, report: AnyPoseReport) -> None:
+    """Write ``report.json`` atomically (checked against the contract first)."""
+    check_contract(report, _contract(report), path, FORMAT)
+    write_json(path, report)
+
+
+def read_pose_report(path: str | Path) -> AnyPoseReport:
+    """The report at ``path``.
+
+    Raises:
+        PipelineError: naming the file, when it is absent, not JSON, not of format
+            ``seathru-poses-report/1`` or missing a key.
+    """
+    data = read_json(path, hint=_HINT)
+    check_contract(data, _contract(data), path, FORMAT, _HINT)
+    return data

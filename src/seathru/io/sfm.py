@@ -1,0 +1,385 @@
+"""Structure from motion with pycolmap 4.2.1: the COLMAP runs behind ``seathru poses``.
+
+The COLMAP run is split in the usual stages (feature extraction, matching, mapping), each on a
+database in a work folder the caller owns. :func:`reconstruct` runs the attempts the quality
+policy asks for (``seathru.geometry.quality``: gate, retries, cross-check) and keeps the model it
+chooses; every attempt is recorded. :func:`colmap_poses` is the whole ``--source colmap`` path:
+8-bit grey (CLAHE) copies of the ingest matching images, an initial focal length, the
+reconstruction, the model written to ``sparse/`` and the report fields.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import shutil
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import numpy as np
+import pycolmap
+
+from seathru.errors import PipelineError
+from seathru.geometry.intrinsics import FocalPrior, initial_camera_params
+from seathru.geometry.poses import c2w_from_cam_from_world
+from seathru.geometry.quality import (MAPPERS, MATCHERS, QualityGate, SfmAttempt, SfmRun,
+                                      SfmSettings, confirmed_run, failure_message,
+                                      plan_attempts, pose_agreement, reprojection_scale,
+                                      unconfirmed_run)
+from seathru.io.colmap import model_images
+from seathru.io.dataset_readers import PosedDataset, PosedView
+from seathru.io.manifest import IngestFolder
+from seathru.io.pose_report import ColmapDetails
+from seathru.radiometry.linearise import matching_grey
+
+log = logging.getLogger(__name__)
+
+
+def global_mapping_available() -> bool:
+    return hasattr(pycolmap, "global_mapping") and hasattr(pycolmap, "GlobalPipelineOptions")
+
+
+@contextlib.contextmanager
+def colmap_log_level(verbose: bool) -> Iterator[None]:
+    """COLMAP logs every stage at INFO; keep warnings only unless the user asked for debug."""
+    previous = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 0 if verbose else 1
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = previous
+
+
+def extract_features(database: Path, image_dir: Path, names: list[str], settings: SfmSettings,
+                     image_size: tuple[int, int], mask_dir: Path | None = None) -> None:
+    """SIFT on the CPU for ``names`` (file names under ``image_dir``) into a new database.
+
+    ``image_size`` (width, height) is that of every image; used for a known focal length.
+    ``mask_dir`` holds ``<file name>.png`` masks (black = no features), COLMAP's layout.
+    """
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = settings.camera_model
+    if settings.focal_px is not None:
+        reader.camera_params = initial_camera_params(settings.camera_model, settings.focal_px,
+                                                     *image_size)
+    if mask_dir is not None:
+        reader.mask_path = str(mask_dir)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.use_gpu = False
+    extraction.num_threads = settings.threads
+    extraction.max_image_size = settings.max_image_size
+    extraction.sift.max_num_features = settings.max_features
+    mode = pycolmap.CameraMode.SINGLE if settings.single_camera else pycolmap.CameraMode.PER_IMAGE
+    pycolmap.extract_features(database, image_dir, image_names=names, camera_mode=mode,
+                              reader_options=reader, extraction_options=extraction,
+                              device=pycolmap.Device.cpu)
+
+
+def match_features(database: Path, settings: SfmSettings) -> None:
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.use_gpu = False
+    matching.num_threads = settings.threads
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = settings.seed
+    if settings.matcher == "sequential":
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = settings.overlap
+        pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing,
+                                  verification_options=verification, device=pycolmap.Device.cpu)
+    elif settings.matcher == "exhaustive":
+        pycolmap.match_exhaustive(database, matching_options=matching,
+                                  verification_options=verification, device=pycolmap.Device.cpu)
+    else:
+        raise PipelineError(f"unknown matcher {settings.matcher!r}; use one of {MATCHERS}")
+
+
+def map_reconstruction(database: Path, image_dir: Path, output_dir: Path,
+                       settings: SfmSettings) -> pycolmap.Reconstruction | None:
+    """Run the mapper; return the model with the most registered images (None if no model)."""
+    output_dir.mkdir(parents=True, exist_ok=True)
+    pycolmap.set_random_seed(settings.seed)
+    if settings.mapper == "incremental":
+        options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads = settings.threads
+        options.random_seed = settings.seed
+        options.mapper.random_seed = settings.seed
+        options.triangulation.random_seed = settings.seed
+        options.min_model_size = 3  # small sets: keep any model; we keep the largest anyway
+        if not settings.refine_focal:
+            options.ba_refine_focal_length = False
+            options.mapper.abs_pose_refine_focal_length = False
+        models = pycolmap.incremental_mapping(database, image_dir, output_dir, options=options)
+    elif settings.mapper == "global":
+        if not global_mapping_available():
+            raise PipelineError("this pycolmap has no global mapper; use --mapper incremental")
+        options = pycolmap.GlobalPipelineOptions()
+        options.num_threads = settings.threads
+        options.random_seed = settings.seed
+        options.min_model_size = 3
+        mapper = options.mapper
+        mapper.num_threads = settings.threads
+        mapper.random_seed = settings.seed
+        mapper.rotation_averaging.random_seed = settings.seed
+        mapper.global_positioning.random_seed = settings.seed
+        mapper.global_positioning.use_gpu = False
+        mapper.bundle_adjustment.ceres.use_gpu = False
+        if not settings.refine_focal:
+            mapper.bundle_adjustment.refine_focal_length = False
+        models = pycolmap.global_mapping(database, image_dir, output_dir, options)
+    else:
+        raise PipelineError(f"unknown mapper {settings.mapper!r}; use one of {MAPPERS}")
+    if not models:
+        return None
+    return max(models.values(), key=lambda model: model.num_reg_images())
+
+
+def registered_names(model: pycolmap.Reconstruction | None) -> set[str]:
+    if model is None:
+        return set()
+    return {model.image(image_id).name for image_id in model.reg_image_ids()}
+
+
+def registered_c2w(model: pycolmap.Reconstruction) -> dict[str, np.ndarray]:
+    """OpenCV camera-to-world (4, 4) of every registered image, by image name."""
+    return {model.image(i).name: c2w_from_cam_from_world(model.image(i).cam_from_world().matrix())
+            for i in model.reg_image_ids()}
+
+
+def compare_models(model: pycolmap.Reconstruction | None,
+                   other: pycolmap.Reconstruction | None) -> dict | None:
+    """:func:`seathru.geometry.quality.pose_agreement` of two models' registered images."""
+    if model is None or other is None:
+        return None
+    return pose_agreement(registered_c2w(model), registered_c2w(other))
+
+
+def describe_model(attempt: SfmAttempt, model: pycolmap.Reconstruction | None,
+                   names: list[str]) -> None:
+    """Fill an attempt's statistics from its model."""
+    registered = registered_names(model)
+    attempt.total = len(names)
+    attempt.registered = len(registered & set(names))
+    attempt.unregistered = [name for name in names if name not in registered]
+    if model is not None and model.num_points3D() > 0:
+        attempt.num_points = int(model.num_points3D())
+        attempt.mean_reprojection_px = float(model.compute_mean_reprojection_error())
+        attempt.mean_track_length = float(model.compute_mean_track_length())
+
+
+@dataclass
+class SfmResult:
+    model: pycolmap.Reconstruction | None
+    chosen: SfmAttempt | None
+    attempts: list[SfmAttempt]
+
+    @property
+    def passed(self) -> bool:
+        return self.chosen is not None and self.chosen.passed
+
+
+class _Runner:
+    """Runs mapping attempts on shared features and per-matcher match databases."""
+
+    def __init__(self, image_dir: Path, names: list[str], work_dir: Path, gate: QualityGate):
+        self.image_dir, self.names, self.work_dir, self.gate = image_dir, names, work_dir, gate
+        self.features_db = work_dir / "features.db"
+        self.matched: dict[tuple, Path] = {}
+        self.attempts: list[SfmAttempt] = []
+
+    def run(self, settings: SfmSettings, role: str
+            ) -> tuple[SfmAttempt, pycolmap.Reconstruction | None]:
+        index = len(self.attempts)
+        attempt = SfmAttempt(settings=asdict(settings), role=role, total=len(self.names))
+        start = time.perf_counter()
+        model = None
+        try:
+            key = (settings.matcher, settings.overlap)
+            if key not in self.matched:
+                matched_db = self.work_dir / f"matches_{settings.matcher}.db"
+                shutil.copyfile(self.features_db, matched_db)
+                match_features(matched_db, settings)
+                self.matched[key] = matched_db
+            database = self.work_dir / f"attempt_{index}.db"
+            shutil.copyfile(self.matched[key], database)
+            model = map_reconstruction(database, self.image_dir,
+                                       self.work_dir / f"attempt_{index}", settings)
+            describe_model(attempt, model, self.names)
+            attempt.passed = self.gate.check(attempt)
+        except PipelineError:
+            raise
+        except Exception as exc:  # COLMAP raises plain RuntimeErrors; record and go on
+            attempt.error = f"{type(exc).__name__}: {exc}"
+            attempt.unregistered = list(self.names)
+        attempt.seconds = round(time.perf_counter() - start, 2)
+        self.attempts.append(attempt)
+        log.info("attempt %d, %s (%s matching, %s mapping, seed %d): %d/%d registered, mean "
+                 "reprojection error %s px, %s", index + 1, role, settings.matcher,
+                 settings.mapper, settings.seed, attempt.registered, attempt.total,
+                 _fmt(attempt.mean_reprojection_px),
+                 "passed" if attempt.passed else "failed the gate")
+        return attempt, model
+
+
+def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: SfmSettings,
+                gate: QualityGate, image_size: tuple[int, int], mask_dir: Path | None = None,
+                retry: bool = True, cross_check: bool = True, verbose: bool = False
+                ) -> SfmResult:
+    """Extract, match and map ``names`` with the quality gate, retries and cross-check.
+
+    Features are extracted once; each matcher's database is built once and copied for every
+    mapping attempt so the attempts do not see each other's writes.
+
+    Without ``cross_check`` the first model that passes the gate is kept (after retrying with
+    another seed, then the alternatives of ``seathru.geometry.quality.plan_attempts``). With
+    it, a model must also be confirmed by an independent model (other mapper or other matcher) agreeing with its poses:
+    a self-consistent model (every image, low reprojection error) can still be wrong when
+    repeated texture produces consistent false matches, and both mappers fail that way at
+    times. Models built on the user's matcher are the candidates (for ordered dive sets the
+    sequential matches hold fewer false pairs); the other matcher's models serve as witnesses,
+    and become candidates only when no model on the user's matcher passes the gate. Among
+    confirmed candidates the one tried first wins; when no candidate is confirmed, the one with
+    the lowest mean reprojection error is kept, marked unconfirmed.
+    """
+    work_dir.mkdir(parents=True, exist_ok=True)
+    runner = _Runner(image_dir, names, work_dir, gate)
+    plan = plan_attempts(settings, retry, cross_check, global_mapping_available())
+    runs: list[SfmRun] = []
+    comparisons: dict[tuple[int, int], dict | None] = {}
+    chosen: SfmRun | None = None
+    with colmap_log_level(verbose):
+        start = time.perf_counter()
+        extract_features(runner.features_db, image_dir, names, settings, image_size, mask_dir)
+        log.info("SIFT features for %d images in %.1f s", len(names), time.perf_counter() - start)
+        queue = list(plan)
+        while queue and chosen is None:
+            current = queue.pop(0)
+            role = ("first" if not runs else
+                    "cross-check" if cross_check and runs[0].attempt.passed else "retry")
+            attempt, model = runner.run(current, role)
+            runs.append(SfmRun(current, attempt, model))
+            if len(runs) == 1 and not attempt.passed and retry:
+                queue.insert(0, replace(current, seed=current.seed + 1))
+            if not cross_check:
+                chosen = runs[-1] if attempt.passed else None
+            else:
+                chosen = confirmed_run(runs, comparisons, gate, settings.matcher,
+                                       compare_models)
+        if chosen is None and runs:
+            chosen = unconfirmed_run(runs, settings.matcher, cross_check)
+    if chosen is None or chosen.attempt.registered == 0:
+        return SfmResult(model=None, chosen=None, attempts=runner.attempts)
+    return SfmResult(model=chosen.model, chosen=chosen.attempt, attempts=runner.attempts)
+
+
+def _fmt(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f}"
+
+
+# -- the --source colmap path ----------------------------------------------------------------
+
+def prepare_matching_images(ingest: IngestFolder, names: list[str], image_dir: Path,
+                            mask_dir: Path, clahe_clip: float | None, clahe_tiles: int = 8
+                            ) -> tuple[tuple[int, int] | None, bool]:
+    """Write grey 8-bit copies (CLAHE'd unless ``clahe_clip`` is None) and COLMAP-named masks.
+
+    Returns the common image size (None if sizes differ) and whether any mask was written.
+    """
+    image_dir.mkdir(parents=True)
+    sizes, any_mask = set(), False
+    for name in names:
+        source = ingest.matching[name]
+        image = cv2.imread(str(source), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise PipelineError(f"{source}: cannot be read as an image")
+        image = matching_grey(image, clahe_clip, clahe_tiles)
+        sizes.add((image.shape[1], image.shape[0]))
+        cv2.imwrite(str(image_dir / f"{name}.png"), image)
+        if name in ingest.matching_masks:
+            mask = cv2.imread(str(ingest.matching_masks[name]), cv2.IMREAD_GRAYSCALE)
+            if mask.shape != image.shape:
+                mask = cv2.resize(mask, (image.shape[1], image.shape[0]),
+                                  interpolation=cv2.INTER_NEAREST)
+            mask_dir.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(mask_dir / f"{name}.png.png"), mask)
+            any_mask = True
+    return (sizes.pop() if len(sizes) == 1 else None), any_mask
+
+
+def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: QualityGate,
+                 focal: FocalPrior, clahe: bool = True, clahe_clip: float = 2.0,
+                 clahe_tiles: int = 8, retry: bool = True, cross_check: bool = True
+                 ) -> tuple[PosedDataset, ColmapDetails]:
+    """Poses of the ingest matching images by COLMAP; the model kept is written to
+    ``out/sparse`` (a work folder ``out/_colmap_work`` is removed again).
+
+    ``settings.focal_px`` and ``gate.reprojection_scale`` are set here from the images' size.
+
+    Raises:
+        PipelineError: too few images, or no model registers ``gate.min_registered_fraction``
+            of them (the message lists every attempt and what to try).
+    """
+    if not ingest.matching:
+        raise PipelineError(f"{ingest.root / 'matching'}: no 8-bit matching images; run the "
+                            f"'ingest' step")
+    names = sorted(set(ingest.matching) & set(ingest.linear))
+    ignored = sorted(set(ingest.matching) ^ set(ingest.linear))
+    if ignored:
+        log.warning("%d images are not in both matching/ and %s/ and are left out: %s",
+                    len(ignored), ingest.linear_dir.name, ", ".join(ignored))
+    if len(names) < 2:
+        raise PipelineError(f"{ingest.root}: need at least 2 images in both matching/ and "
+                            f"{ingest.linear_dir.name}/, found {len(names)}")
+    work = out / "_colmap_work"
+    image_dir, mask_dir = work / "images", work / "masks"
+    size, any_mask = prepare_matching_images(ingest, names, image_dir, mask_dir,
+                                             clahe_clip if clahe else None, clahe_tiles)
+    if settings.single_camera and size is None:
+        raise PipelineError(f"{ingest.root / 'matching'}: images have different sizes, so they "
+                            f"cannot share one camera; use --camera-mode per-image")
+    focal_px, focal_source = (None, "not used (images of different sizes)")
+    if size is not None:
+        try:
+            focal_px, focal_source = focal.at_size(*size)
+        except ValueError as exc:
+            raise PipelineError(str(exc)) from None
+    if focal_px is not None:
+        log.info("initial focal length %.1f px (%s)", focal_px, focal_source)
+    settings = replace(settings, focal_px=focal_px)
+    gate = replace(gate, reprojection_scale=reprojection_scale(size, settings.max_image_size))
+    result = reconstruct(image_dir, [f"{name}.png" for name in names], work, settings, gate,
+                         size or (0, 0), mask_dir if any_mask else None, retry=retry,
+                         cross_check=cross_check, verbose=log.isEnabledFor(logging.DEBUG))
+    chosen = result.chosen
+    if chosen is None or chosen.registered_fraction < gate.min_registered_fraction:
+        raise PipelineError(failure_message(result.attempts, chosen, len(names), gate))
+    if not chosen.passed:
+        log.warning("the best COLMAP model (%d/%d registered, mean reprojection error %s px) "
+                    "did not pass the quality gate (%s); continuing with it", chosen.registered,
+                    chosen.total, chosen.mean_reprojection_px, chosen.note or
+                    f"--max-reproj-px {gate.max_reprojection_px}")
+    unregistered = [Path(name).stem for name in chosen.unregistered]
+    if unregistered:
+        log.warning("%d of %d images not registered (left out): %s", len(unregistered),
+                    len(names), ", ".join(unregistered))
+    (out / "sparse").mkdir()
+    result.model.write(out / "sparse")
+    views = [PosedView(name=Path(image.name).stem, camera=image.camera, c2w=image.c2w,
+                       near=image.near, far=image.far) for image in model_images(result.model)]
+    shutil.rmtree(work)
+    details: ColmapDetails = {
+        "clahe": {"enabled": clahe, "clip": clahe_clip, "tiles": clahe_tiles},
+        "initial_focal_px": focal_px, "initial_focal_source": focal_source,
+        "extraction_masks": any_mask,
+        "global_mapping_available": global_mapping_available(),
+        "gate": asdict(gate), "gate_passed": chosen.passed,
+        "attempts": [a.to_dict() for a in result.attempts],
+        "chosen_attempt": result.attempts.index(chosen) + 1,  # attempts count from 1
+        "registered": chosen.registered, "total": len(names),
+        "mean_reprojection_px": chosen.mean_reprojection_px,
+        "unregistered": unregistered,
+        "left_out_not_in_both_folders": ignored,
+    }
+    return PosedDataset(views=views, source="colmap"), details

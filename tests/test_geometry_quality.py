@@ -1,0 +1,144 @@
+"""seathru.geometry.quality: the SfM quality gate, the plan of attempts, model agreement and the
+choice of the model kept (COLMAP itself is not run here)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seathru.geometry.poses import umeyama
+from seathru.geometry.quality import (QualityGate, SfmAttempt, SfmRun, SfmSettings,
+                                      confirmed_run, failure_message, independent,
+                                      plan_attempts, pose_agreement, reprojection_scale,
+                                      unconfirmed_run)
+
+
+def attempt(registered=10, total=10, error=0.5, passed=None, gate=QualityGate()) -> SfmAttempt:
+    result = SfmAttempt(settings={}, registered=registered, total=total,
+                        mean_reprojection_px=error)
+    result.passed = gate.check(result) if passed is None else passed
+    return result
+
+
+def test_gate_checks_registration_and_reprojection_at_sift_scale():
+    gate = QualityGate(min_registered_fraction=0.8, max_reprojection_px=1.0,
+                       reprojection_scale=reprojection_scale((3200, 2400), 1600))
+    assert gate.reprojection_scale == 2.0
+    assert gate.check(attempt(8, 10, 1.9)) and not gate.check(attempt(7, 10, 0.1))
+    assert not gate.check(attempt(10, 10, 2.1)) and not gate.check(attempt(10, 10, None))
+    assert not gate.check(attempt(0, 0, 0.1))
+    assert reprojection_scale((800, 600), 1600) == 1.0      # never below 1
+    assert reprojection_scale(None, 1600) == reprojection_scale((800, 600), -1) == 1.0
+    assert gate.agree({"max_centre_deviation": 0.01, "max_rotation_deviation_deg": 1.0})
+    assert not gate.agree({"max_centre_deviation": 0.02, "max_rotation_deviation_deg": 0.0})
+    assert not gate.agree(None)
+
+
+def test_plan_tries_the_other_mapper_then_the_other_matcher():
+    user = SfmSettings(matcher="sequential", mapper="incremental", seed=3)
+    plan = [(p.matcher, p.mapper) for p in plan_attempts(user)]
+    assert plan == [("sequential", "incremental"), ("sequential", "global"),
+                    ("exhaustive", "incremental"), ("exhaustive", "global")]
+    assert all(p.seed == 3 for p in plan_attempts(user))
+    no_global = [(p.matcher, p.mapper) for p in plan_attempts(user, global_available=False)]
+    assert no_global == [("sequential", "incremental"), ("exhaustive", "incremental")]
+    assert [(p.matcher, p.mapper) for p in plan_attempts(user, retry=False)] == plan[:2]
+    assert plan_attempts(user, retry=False, cross_check=False) == [user]
+    glob = SfmSettings(matcher="exhaustive", mapper="global")
+    assert [(p.matcher, p.mapper) for p in plan_attempts(glob, cross_check=False)] == [
+        ("exhaustive", "global"), ("sequential", "global")]
+    assert independent(plan_attempts(user)[0], plan_attempts(user)[1])
+    assert not independent(user, SfmSettings(seed=9))
+
+
+def _trajectory(seed: int, count: int = 8) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    poses = {}
+    for i in range(count):
+        c2w = np.eye(4)
+        c2w[:3, :3] = np.linalg.qr(rng.normal(size=(3, 3)))[0] * np.sign(
+            np.linalg.det(np.linalg.qr(rng.normal(size=(3, 3)))[0]))
+        c2w[:3, :3] *= np.sign(np.linalg.det(c2w[:3, :3]))
+        c2w[:3, 3] = rng.normal(size=3)
+        poses[f"im{i}"] = c2w
+    return poses
+
+
+def test_pose_agreement_is_invariant_to_a_similarity_and_finds_a_moved_camera():
+    poses = _trajectory(0)
+    similarity = umeyama(np.random.default_rng(1).normal(size=(5, 3)),
+                         np.random.default_rng(2).normal(size=(5, 3)))
+    moved = {}
+    for name, c2w in poses.items():
+        other = np.eye(4)
+        other[:3, :3] = similarity.rotation @ c2w[:3, :3]
+        other[:3, 3] = similarity.apply(c2w[:3, 3][None])[0]
+        moved[name] = other
+    same = pose_agreement(poses, moved)
+    assert same["common_images"] == 8
+    assert same["max_centre_deviation"] < 1e-9 and same["max_rotation_deviation_deg"] < 1e-5
+    extent = max(np.linalg.norm(a[:3, 3] - b[:3, 3]) for a in poses.values()
+                 for b in poses.values())
+    moved["im3"] = moved["im3"].copy()
+    moved["im3"][:3, 3] += 0.2 * extent * similarity.scale
+    assert pose_agreement(poses, moved)["max_centre_deviation"] > 0.05
+    assert pose_agreement(poses, {k: moved[k] for k in ("im0", "im1")}) is None
+
+
+def _runs(*specs) -> list[SfmRun]:
+    """(matcher, mapper, passed, reprojection error) per run."""
+    return [SfmRun(SfmSettings(matcher=m, mapper=p), attempt(passed=ok, error=e), model=f"{m} {p}")
+            for m, p, ok, e in specs]
+
+
+def test_a_candidate_is_kept_only_when_an_independent_model_agrees():
+    gate = QualityGate()
+    agree = {"common_images": 10, "max_centre_deviation": 0.001, "max_rotation_deviation_deg": 0.1}
+    far = {"common_images": 10, "max_centre_deviation": 0.3, "max_rotation_deviation_deg": 9.0}
+    runs = _runs(("sequential", "incremental", True, 0.4), ("sequential", "global", True, 0.3))
+    calls = []
+
+    def compare(a, b):
+        calls.append((a, b))
+        return far if b == "sequential global" else agree
+
+    comparisons: dict = {}
+    assert confirmed_run(runs, comparisons, gate, "sequential", compare) is None
+    assert comparisons == {(0, 1): far} and runs[1].attempt.comparisons[0]["with_attempt"] == 1
+    runs += _runs(("exhaustive", "incremental", True, 0.5))
+    chosen = confirmed_run(runs, comparisons, gate, "sequential", compare)
+    assert chosen is runs[0] and "confirmed by attempt 3" in chosen.attempt.note
+    assert chosen.attempt.agreement == agree  # compared once per pair, not redone:
+    assert calls == [("sequential incremental", "sequential global"),
+                     ("sequential incremental", "exhaustive incremental")]
+
+
+def test_unconfirmed_keeps_the_lowest_error_candidate_and_marks_it():
+    runs = _runs(("sequential", "incremental", True, 0.6), ("sequential", "global", True, 0.2),
+                 ("exhaustive", "incremental", True, 0.1))
+    best = unconfirmed_run(runs, "sequential", cross_check=True)
+    assert best is runs[1] and not best.attempt.passed and "no independent model" in \
+        best.attempt.note
+    failed = _runs(("sequential", "incremental", False, 3.0), ("sequential", "global", False, 2.0))
+    failed[0].attempt.registered = 9
+    assert unconfirmed_run(failed, "sequential", cross_check=True) is failed[1]  # more images
+
+
+def test_failure_message_lists_attempts_and_advice():
+    attempts = [SfmAttempt(settings={"matcher": "sequential", "mapper": "incremental", "seed": 0},
+                           registered=2, total=7, unregistered=[f"im{i}" for i in range(5)]),
+                SfmAttempt(settings={"matcher": "exhaustive", "mapper": "global", "seed": 0},
+                           total=7, error="RuntimeError: no model")]
+    message = failure_message(attempts, attempts[0], 7, QualityGate(min_registered_fraction=0.8))
+    assert "registered only 2 of 7 images" in message and "need 80%" in message
+    assert "exhaustive matching + global mapping, seed 0: 0/7 (RuntimeError: no model)" in message
+    assert "Unregistered: im0, im1, im2, im3, im4" in message
+    assert "--focal-px" in message and "--max-features" in message
+    assert failure_message([], None, 3, QualityGate()).startswith(
+        "COLMAP registered only 0 of 3 images")
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.5, 1.0])
+def test_attempt_record_has_the_registered_fraction(fraction):
+    record = attempt(registered=int(10 * fraction), total=10).to_dict()
+    assert record["registered_fraction"] == fraction and record["settings"] == {}
