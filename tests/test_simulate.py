@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import typing
 
 import exifread
 import numpy as np
@@ -17,10 +18,10 @@ from hypothesis import strategies as st
 from seathru.cli import main as cli_main
 from seathru.sim import scene as scene_mod
 from seathru.sim import sensor as sensor_mod
-from seathru.sim.water import PRESETS, WaterParams, water_image, water_params
+from seathru.sim.water import PRESETS, WaterParams, WaterPreset, water_image, water_params
 from seathru.io.cameras import read_cameras
 from seathru.io.dng import decode_linear, read_dng_metadata
-from seathru.steps.simulate import SimulationOptions, simulate
+from seathru.steps.simulate import Settings, simulate
 
 VIEWS, WIDTH, HEIGHT = 4, 96, 72
 NAMES = [f"dive_{i:04d}" for i in range(VIEWS)]
@@ -39,7 +40,8 @@ def dive(tmp_path_factory):
 @functools.cache
 def _flat_scene() -> scene_mod.Scene:
     """Nothing but the plane z = 0."""
-    return scene_mod.build_scene({}, seed=0, seabed=scene_mod.Seabed(amplitude=0.0), objects=[])
+    return scene_mod.build_dive_scene({}, seed=0, seabed=scene_mod.Seabed(amplitude=0.0),
+                                      objects=[])
 
 
 # ------------------------------------------------------------------------------ ray casting
@@ -72,8 +74,8 @@ def test_supersampled_range_is_mean_of_subsample_ranges():
 def test_sphere_and_box_ranges_are_exact():
     sphere = scene_mod.Ellipsoid("s", (0.0, 0.0, 1.0), (0.5, 0.5, 0.5))
     box = scene_mod.Box("b", (3.0, 0.0, 1.0), (0.4, 0.3, 0.2), yaw=0.0)
-    scene = scene_mod.build_scene({}, seabed=scene_mod.Seabed(amplitude=0.0), objects=[sphere,
-                                                                                        box])
+    scene = scene_mod.build_dive_scene({}, seabed=scene_mod.Seabed(amplitude=0.0),
+                                       objects=[sphere, box])
     eye = np.array([0.0, 0.0, 4.0])
     dirs = np.array([[0.0, 0.0, -1.0], [3.0, 0.0, -2.8], [1.0, 0.0, -0.2]])
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
@@ -115,7 +117,7 @@ def test_open_water_gives_nan_range_and_c_med():
 
 @pytest.mark.parametrize("path", ["orbit", "transect"])
 def test_paths_are_rotations_looking_at_the_scene(path):
-    scene = scene_mod.build_scene({}, seed=1)
+    scene = scene_mod.build_dive_scene({}, seed=1)
     rng = np.random.default_rng(2)
     poses = (scene_mod.orbit_path(scene, 8, rng) if path == "orbit"
              else scene_mod.transect_path(scene, 8, rng))
@@ -160,7 +162,7 @@ def test_water_image_matches_float64_reference(j, z, attn, bs, med):
 
 
 def test_clear_water_image_equals_clean_image_exactly():
-    scene = scene_mod.build_scene({}, seed=4)
+    scene = scene_mod.build_dive_scene({}, seed=4)
     camera = sensor_mod.Pinhole.from_fov(40, 30, 65.0)
     c2w = scene_mod.orbit_path(scene, 3, np.random.default_rng(0))[1]
     origin, dirs = sensor_mod.pixel_rays(camera, c2w, supersample=2)
@@ -193,6 +195,22 @@ def test_raw_noise_follows_poisson_gaussian_model():
         assert value.std() == pytest.approx(sigma, rel=0.05)
     saturated = sensor_mod.capture_raw(np.full((4, 4), 1e6), config.iso, config, rng)
     assert np.all(saturated == config.white_level)
+
+
+@settings(max_examples=40, deadline=None)
+@given(level=st.integers(0, 16383))
+def test_camera_jpeg_matches_float64_reference(level):
+    config = sensor_mod.SensorConfig()
+    raw = np.full((4, 6), level, dtype=np.uint16)  # flat: demosaicing keeps the value
+    normalised = min(max((level - config.black_level) / config.range_dn, 0.0), 1.0)
+    linear = min(max(sensor_mod.JPEG_WHITE / config.metering_fraction * normalised, 0.0), 1.0)
+    expected = linear * 12.92 if linear <= 0.0031308 else 1.055 * linear ** (1 / 2.4) - 0.055
+    np.testing.assert_allclose(sensor_mod.develop_jpeg(raw, config), expected, atol=1e-6)
+
+
+def test_choices_of_the_settings_are_the_tables():
+    assert typing.get_args(scene_mod.CameraPath) == tuple(scene_mod.CAMERA_PATHS)
+    assert typing.get_args(WaterPreset) == tuple(PRESETS)
 
 
 # ------------------------------------------------------------------------------ written files
@@ -298,14 +316,25 @@ def test_rerun_replaces_output_and_refuses_foreign_folder(dive, tmp_path):
     assert cli_main(["simulate", "--out", str(tmp_path / "x"), "--width", "15"]) == 2
 
 
+@pytest.mark.parametrize("flags, message", [
+    (["--width", "15"], "width: need an even number"),
+    (["--sigma-attn", "0.1", "-1", "0.2"], "sigma_attn: expected three finite values >= 0"),
+    (["--water-scale", "-2"], "water_scale: expected a finite value >= 0"),
+    (["--workers", "0"], "workers: need at least 1")])
+def test_bad_settings_are_refused_naming_the_setting(tmp_path, capsys, flags, message):
+    assert cli_main(["simulate", "--out", str(tmp_path / "x"), *flags]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+
+
 def test_output_is_deterministic_and_independent_of_workers(tmp_path):
     base = dict(views=3, width=24, height=16, seed=11, supersample=1)
-    simulate(tmp_path / "one", SimulationOptions(**base, workers=1))
-    simulate(tmp_path / "two", SimulationOptions(**base, workers=2))
+    simulate(tmp_path / "one", Settings(**base, workers=1))
+    simulate(tmp_path / "two", Settings(**base, workers=2))
     for rel in ("raw/dive_0002.dng", "truth/water/dive_0001.tiff", "jpeg/dive_0000.jpg",
                 "truth/cameras.json", "truth/sensor.json"):
         assert (tmp_path / "one" / rel).read_bytes() == (tmp_path / "two" / rel).read_bytes()
     other = tmp_path / "other"
-    simulate(other, SimulationOptions(**{**base, "seed": 12}))
+    simulate(other, Settings(**{**base, "seed": 12}))
     assert (other / "raw/dive_0002.dng").read_bytes() != (tmp_path / "one" /
                                                           "raw/dive_0002.dng").read_bytes()

@@ -13,6 +13,8 @@ as a whole). Pure numpy / scipy, no file I/O.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, Slerp
@@ -123,3 +125,15 @@ def smooth_camera_path(c2w: np.ndarray, n_frames: int, names: list[str] | None =
         raise ValueError(f"expected (N, 4, 4) poses with N >= 1, got {c2w.shape}")
     order = capture_order(c2w[:, :3, 3], names)
     return interpolate_poses(key_poses(c2w[order], max_keys), n_frames)
+
+
+def path_frames(cameras, n_frames: int, max_keys: int = DEFAULT_MAX_KEYS) -> list:
+    """``n_frames`` camera frames along the smooth path through the training cameras of a
+    ``seathru.io.cameras.CameraSet``: named ``path_0000``, ..., split ``path``, with the first
+    training frame's intrinsics and the scene-wide near/far bounds (no image)."""
+    train = sorted(cameras.split("train"), key=lambda f: f.name)
+    poses = smooth_camera_path(np.stack([f.c2w_array for f in train]), n_frames,
+                               names=[f.name for f in train], max_keys=max_keys)
+    return [replace(train[0], name=f"path_{i:04d}", image="", mask=None, split="path",
+                    c2w=pose.tolist(), near=float(cameras.near), far=float(cameras.far))
+            for i, pose in enumerate(poses)]

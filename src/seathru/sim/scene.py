@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
+from typing import Callable, Literal, Mapping, Sequence
 
 import cv2
 import numpy as np
@@ -478,9 +478,9 @@ def _pebbles(seabed: Seabed, count: int = 20) -> list[SceneObject]:
     return pebbles
 
 
-def build_scene(textures_srgb: Mapping[str, np.ndarray] | None = None, seed: int = 0,
-                seabed: Seabed | None = None, objects: Sequence[SceneObject] | None = None
-                ) -> Scene:
+def build_dive_scene(textures_srgb: Mapping[str, np.ndarray] | None = None, seed: int = 0,
+                     seabed: Seabed | None = None, objects: Sequence[SceneObject] | None = None
+                     ) -> Scene:
     """The demo scene. ``textures_srgb`` maps texture names of :data:`TEXTURE_LAYOUT` to sRGB
     ``uint8`` images; missing ones (and unknown names used by ``objects``) get fractal noise
     seeded by ``seed``. ``objects=None`` gives :func:`default_objects`."""
@@ -792,3 +792,8 @@ def transect_path(scene: Scene, views: int, rng: np.random.Generator, length: fl
         poses.append(look_at((x, y, z), np.array([x, y, z]) + forward,
                              roll=rng.normal(0.0, math.radians(2.0))))
     return np.stack(poses)
+
+
+CameraPath = Literal["orbit", "transect"]  # the keys of CAMERA_PATHS
+CAMERA_PATHS: dict[CameraPath, Callable[[Scene, int, np.random.Generator], np.ndarray]] = {
+    "orbit": orbit_path, "transect": transect_path}

@@ -15,6 +15,10 @@ Sensor (all values in DN, digital numbers):
   ``read_noise_dn`` DN. Variance in DN: ``gain * signal + read_noise_dn**2``;
 - the black level is added, values are rounded to integers (``bit_depth``-bit container) and
   clipped to ``[0, white_level]`` (the sensor saturates at the white level).
+
+Camera JPEG (:func:`develop_jpeg`): the bilinearly demosaiced raw, normalised like a raw
+decoder, times one gain for the whole dive (:func:`jpeg_gain`), clipped and sRGB encoded; no
+white balance, so like a camera JPEG it keeps each image's exposure and noise.
 """
 
 from __future__ import annotations
@@ -24,6 +28,10 @@ from dataclasses import asdict, dataclass
 
 import cv2
 import numpy as np
+
+from seathru.radiometry.colour import linear_to_srgb
+
+JPEG_WHITE = 0.85  # the metered radiance at nominal exposure maps to this linear JPEG value
 
 
 @dataclass(frozen=True)
@@ -169,3 +177,28 @@ def normalise_raw(raw: np.ndarray, config: SensorConfig) -> np.ndarray:
 def demosaic_bilinear(raw: np.ndarray) -> np.ndarray:
     """RGGB ``uint16`` mosaic -> (H, W, 3) ``uint16`` by OpenCV's bilinear demosaicing."""
     return cv2.demosaicing(raw, cv2.COLOR_BayerRGGB2RGB)
+
+
+def jpeg_gain(config: SensorConfig) -> float:
+    """The camera JPEG's gain on normalised raw values: the metered radiance at nominal exposure
+    (``metering_fraction`` of the raw range) maps to :data:`JPEG_WHITE`."""
+    return JPEG_WHITE / config.metering_fraction
+
+
+def develop_jpeg(raw: np.ndarray, config: SensorConfig) -> np.ndarray:
+    """The camera-like JPEG rendering of an RGGB mosaic, before 8-bit encoding.
+
+    Args:
+        raw: (H, W) ``uint16`` mosaic.
+        config: the sensor (black and white level).
+
+    Returns:
+        (H, W, 3) sRGB-encoded float32 in [0, 1]:
+        ``srgb(clip(jpeg_gain * normalise_raw(demosaic_bilinear(raw)), 0, 1))``.
+
+    Example::
+
+        jpeg = develop_jpeg(capture_raw(signal, 400, config, rng), config)
+    """
+    developed = normalise_raw(demosaic_bilinear(raw), config)
+    return linear_to_srgb(np.clip(jpeg_gain(config) * developed, 0.0, 1.0))

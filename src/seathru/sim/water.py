@@ -19,11 +19,11 @@ Presets are chosen for the demo scene, where the diver is ~2.5-4 m from the seab
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Literal, Sequence
 
 import numpy as np
 
-from seathru.errors import PipelineError
+WaterPreset = Literal["default", "clear", "turbid"]  # the keys of PRESETS
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,7 @@ class WaterParams:
                 "preset": self.preset}
 
 
-PRESETS: dict[str, WaterParams] = {
+PRESETS: dict[WaterPreset, WaterParams] = {
     "default": WaterParams((0.55, 0.25, 0.20), (0.45, 0.30, 0.25), (0.04, 0.20, 0.28), "default"),
     "clear": WaterParams((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), "clear"),
     "turbid": WaterParams((1.1, 0.66, 0.75), (0.5, 0.4, 0.4), (0.05, 0.22, 0.19), "turbid"),
@@ -52,22 +52,37 @@ def _triple(name: str, values: Sequence[float] | None) -> tuple[float, float, fl
         return None
     values = tuple(float(v) for v in values)
     if len(values) != 3 or any(not np.isfinite(v) or v < 0.0 for v in values):
-        raise PipelineError(f"--{name.replace('_', '-')}: expected three finite values >= 0 "
-                            f"(red green blue), got {list(values)}")
+        raise ValueError(f"{name}: expected three finite values >= 0 (red green blue), got "
+                         f"{list(values)}")
     return values  # type: ignore[return-value]
 
 
-def water_params(preset: str = "default", scale: float = 1.0,
+def water_params(preset: WaterPreset = "default", scale: float = 1.0,
                  sigma_attn: Sequence[float] | None = None,
                  sigma_bs: Sequence[float] | None = None,
                  c_med: Sequence[float] | None = None) -> WaterParams:
     """A preset, its coefficients multiplied by ``scale``, then any explicit per-channel
-    override (overrides are taken as given, not scaled)."""
+    override (overrides are taken as given, not scaled).
+
+    Args:
+        preset: one of :data:`PRESETS`.
+        scale: turbidity factor on the preset's ``sigma_attn`` and ``sigma_bs``.
+        sigma_attn, sigma_bs, c_med: (3,) red, green, blue overrides, or None.
+
+    Returns:
+        the parameters; ``preset`` is ``"<name>+custom"`` when anything was changed.
+
+    Raises:
+        ValueError: an unknown preset, or a negative or non-finite value (message names it).
+
+    Example::
+
+        water_params("default", scale=2.0).sigma_attn  # (1.1, 0.5, 0.4)
+    """
     if preset not in PRESETS:
-        raise PipelineError(f"--water: unknown preset {preset!r}; choose one of "
-                            f"{', '.join(PRESETS)}")
+        raise ValueError(f"water: unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
     if not np.isfinite(scale) or scale < 0.0:
-        raise PipelineError(f"--water-scale: expected a finite value >= 0, got {scale}")
+        raise ValueError(f"water_scale: expected a finite value >= 0, got {scale}")
     base = PRESETS[preset]
     attn = _triple("sigma_attn", sigma_attn) or tuple(scale * v for v in base.sigma_attn)
     bs = _triple("sigma_bs", sigma_bs) or tuple(scale * v for v in base.sigma_bs)

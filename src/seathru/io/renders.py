@@ -1,0 +1,272 @@
+"""The render step's output folder (file contract): held-out views, path videos, render stats.
+
+Layout::
+
+    test/<view>/{full,restored,direct,backscatter}.tiff   linear radiance, float32 (H, W, 3)
+    test/<view>/{full,restored,direct,backscatter}.png    display copies, 8-bit sRGB
+    test/<view>/gt.png        the view's image with the same display exposure (when readable)
+    test/<view>/depth.tiff    expected ray distance, normalised scene units, float32 (H, W)
+    test/<view>/depth.png     depth colour-mapped (near warm, far cool; one range per dataset)
+    test/<view>/opacity.tiff  accumulated object opacity, float32 (H, W) (when rendered)
+    path/{full,restored,depth}.mp4   camera-path videos ('mp4v'; odd sizes padded by one pixel)
+    render_stats.json         seconds per frame, frames per second, resolution, display
+                              exposure, depth range, settings (format seathru-render-stats/1)
+
+Writers take float32 arrays (display copies already sRGB-encoded in [0, 1]); readers raise
+``PipelineError`` naming the file.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any, TypedDict
+
+import cv2
+import numpy as np
+
+from seathru.errors import PipelineError
+from seathru.io.atomic import write_json
+from seathru.io.cameras import CameraSet
+from seathru.io.contract import check_contract
+from seathru.io.images import read_image, write_8bit, write_float_tiff
+from seathru.io.jsonfile import read_json
+
+log = logging.getLogger(__name__)
+
+STATS_FORMAT = "seathru-render-stats/1"
+STATS_NAME = "render_stats.json"
+COMPONENTS = ("full", "restored", "direct", "backscatter")
+# the inference dict's key (seathru.nerf.inference.RENDER_KEYS) of each output name
+RENDER_KEYS = {"full": "rgb", "restored": "restored", "direct": "direct",
+               "backscatter": "backscatter"}
+VIDEO_OUTPUTS = ("full", "restored", "depth")
+MAX_EXPOSURE_IMAGES = 24
+_HINT = "re-run the 'render' step"
+
+
+class FrameRecord(TypedDict):
+    name: str
+    split: str                  # test | path
+    seconds: float
+    width: int
+    height: int
+
+
+class SpeedSummary(TypedDict):
+    count: int
+    seconds_per_frame: float | None
+    fps: float | None
+    resolution: list | None     # [width, height], or a list of them
+    total_seconds: float
+
+
+class DisplayRecord(TypedDict):
+    exposure_scale: float
+    exposure_source: str        # "training images" or "render of <view>"
+    depth_range: list[float]
+    depth_units: str
+    depth_cmap: str
+
+
+class RenderStats(TypedDict):
+    format: str                 # STATS_FORMAT
+    test: SpeedSummary
+    path: SpeedSummary
+    seconds_per_frame: float | None  # the headline figures: held-out views
+    fps: float | None
+    resolution: list | None
+    display: DisplayRecord
+    normalisation: dict
+    videos: dict                # name -> {"file": "path/<name>.mp4", "frames": n}
+    settings: dict
+    frames: list[FrameRecord]
+
+
+def render_path(root: str | os.PathLike, view: str, name: str, suffix: str = ".tiff") -> Path:
+    """``root/test/<view>/<name><suffix>``."""
+    return Path(root) / "test" / view / f"{name}{suffix}"
+
+
+def exposure_references(cameras: CameraSet, max_images: int = MAX_EXPOSURE_IMAGES
+                        ) -> Iterator[np.ndarray]:
+    """Up to ``max_images`` training images, evenly spread in name order, one at a time (for
+    the display exposure); unreadable ones are skipped with a warning."""
+    frames = sorted(cameras.split("train"), key=lambda f: f.name)
+    if not frames:
+        return
+    picks = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), max_images))
+                      .round().astype(int))
+    for index in picks:
+        try:
+            yield read_image(cameras.image_path(frames[index]))
+        except PipelineError as exc:
+            log.warning("exposure: skipping %s (%s)", frames[index].name, exc)
+
+
+def read_view_image(cameras: CameraSet, frame) -> np.ndarray | None:
+    """The camera file's image of ``frame`` (the ground truth of a held-out view); None, with a
+    warning, when it cannot be read."""
+    try:
+        return read_image(cameras.image_path(frame))
+    except PipelineError as exc:
+        log.warning("no ground-truth display copy for %s (%s)", frame.name, exc)
+        return None
+
+
+def write_test_view(root: str | os.PathLike, view: str, images: Mapping[str, np.ndarray],
+                    shown: Mapping[str, np.ndarray]) -> None:
+    """A held-out view's linear renders and display copies.
+
+    Args:
+        images: the inference dict: ``rgb``, ``restored``, ``direct``, ``backscatter``
+            (H, W, 3), ``depth`` and optionally ``opacity`` (H, W).
+        shown: display copies (H, W, 3) in [0, 1] of each of :data:`COMPONENTS`, and ``gt``
+            when there is one.
+    """
+    for name in COMPONENTS:
+        write_float_tiff(render_path(root, view, name), images[RENDER_KEYS[name]])
+        write_display(root, view, name, shown[name])
+    write_float_tiff(render_path(root, view, "depth"), images["depth"])
+    if "opacity" in images:
+        write_float_tiff(render_path(root, view, "opacity"), images["opacity"])
+    if "gt" in shown:
+        write_display(root, view, "gt", shown["gt"])
+
+
+def write_display(root: str | os.PathLike, view: str, name: str, image: np.ndarray) -> None:
+    """``test/<view>/<name>.png``: an 8-bit copy of display values (H, W, 3) in [0, 1]."""
+    write_8bit(render_path(root, view, name, ".png"), image)
+
+
+def count_video_frames(path: str | os.PathLike) -> int:
+    """Number of frames OpenCV can decode from a video file (0 if it cannot be opened)."""
+    capture = cv2.VideoCapture(str(path))
+    try:
+        if not capture.isOpened():
+            return 0
+        count = 0
+        while True:
+            ok, _ = capture.read()
+            if not ok:
+                return count
+            count += 1
+    finally:
+        capture.release()
+
+
+class PathVideos:
+    """The camera-path videos, written a frame at a time (``with PathVideos(...) as videos``).
+
+    Each video opens at the first frame's size (padded to even: MPEG-4 frames have even sizes);
+    :meth:`check` reads every file back and returns the ``videos`` record of the stats.
+    """
+
+    def __init__(self, folder: str | os.PathLike, fps: float, names=VIDEO_OUTPUTS):
+        self.folder, self.fps, self.names = Path(folder), float(fps), tuple(names)
+        self.writers: dict[str, cv2.VideoWriter] = {}
+
+    def __enter__(self) -> PathVideos:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        for writer in self.writers.values():
+            writer.release()
+
+    def write(self, images: Mapping[str, np.ndarray]) -> None:
+        """One frame of every video: ``images[name]`` (H, W, 3) display values in [0, 1]."""
+        height, width = next(iter(images.values())).shape[:2]
+        if not self.writers:
+            for name in self.names:
+                writer = cv2.VideoWriter(str(self.folder / f"{name}.mp4"),
+                                         cv2.VideoWriter_fourcc(*"mp4v"), self.fps,
+                                         (width + width % 2, height + height % 2))
+                if not writer.isOpened():
+                    raise PipelineError(f"{self.folder.name}/{name}.mp4: OpenCV cannot open an "
+                                        "'mp4v' video writer (built without video support?)")
+                self.writers[name] = writer
+        for name in self.names:
+            data = np.round(np.clip(images[name], 0.0, 1.0) * 255.0).astype(np.uint8)
+            data = cv2.copyMakeBorder(data, 0, height % 2, 0, width % 2, cv2.BORDER_REPLICATE)
+            self.writers[name].write(cv2.cvtColor(data, cv2.COLOR_RGB2BGR))
+
+    def check(self, expected: int) -> dict:
+        """``{name: {"file", "frames"}}`` after closing; PipelineError when a video does not
+        read back with ``expected`` frames."""
+        self.close()
+        videos = {}
+        for name in self.writers:
+            count = count_video_frames(self.folder / f"{name}.mp4")
+            if count != expected:
+                raise PipelineError(f"{self.folder.name}/{name}.mp4: OpenCV reads back {count} "
+                                    f"of {expected} frames from the written video")
+            videos[name] = {"file": f"{self.folder.name}/{name}.mp4", "frames": count}
+        return videos
+
+
+def frame_record(name: str, split: str, seconds: float, images: Mapping[str, np.ndarray]
+                 ) -> FrameRecord:
+    """A rendered frame's entry of the stats; its size is that of ``images["depth"]``."""
+    height, width = images["depth"].shape[:2]
+    return {"name": name, "split": split, "seconds": seconds, "width": int(width),
+            "height": int(height)}
+
+
+def display_record(exposure_scale: float, exposure_source: str,
+                   depth_range: tuple[float, float], depth_cmap: str) -> DisplayRecord:
+    """How the display copies were made: one exposure scale and one depth range per dataset."""
+    return {"exposure_scale": float(exposure_scale), "exposure_source": exposure_source,
+            "depth_range": list(depth_range), "depth_units": "normalised",
+            "depth_cmap": depth_cmap}
+
+
+def summarise(frames: list[FrameRecord]) -> SpeedSummary:
+    """Count, mean seconds per frame, frames per second, resolution(s) and total seconds."""
+    if not frames:
+        return {"count": 0, "seconds_per_frame": None, "fps": None, "resolution": None,
+                "total_seconds": 0.0}
+    seconds = [f["seconds"] for f in frames]
+    mean = float(np.mean(seconds))
+    sizes = sorted({(f["width"], f["height"]) for f in frames})
+    return {"count": len(frames), "seconds_per_frame": mean,
+            "fps": 1.0 / mean if mean > 0 else None,
+            "resolution": list(sizes[0]) if len(sizes) == 1 else [list(s) for s in sizes],
+            "total_seconds": float(np.sum(seconds))}
+
+
+def render_stats(test: list[FrameRecord], path: list[FrameRecord], display: DisplayRecord,
+                 cameras: CameraSet, videos: dict, settings: dict) -> RenderStats:
+    """The content of ``render_stats.json``; the headline speed is the held-out views'."""
+    summary = summarise(test)
+    return {"format": STATS_FORMAT, "test": summary, "path": summarise(path),
+            "seconds_per_frame": summary["seconds_per_frame"], "fps": summary["fps"],
+            "resolution": summary["resolution"], "display": display,
+            "normalisation": {"centre": list(map(float, cameras.centre)),
+                              "scale": float(cameras.scale)},
+            "videos": videos, "settings": settings, "frames": test + path}
+
+
+def write_render_stats(root: str | os.PathLike, stats: RenderStats) -> None:
+    """``root/render_stats.json``, atomically (checked against the contract first)."""
+    path = Path(root) / STATS_NAME
+    check_contract(stats, RenderStats, path, STATS_FORMAT)
+    write_json(path, stats)
+
+
+def read_render_stats(root: str | os.PathLike) -> RenderStats:
+    """``root/render_stats.json`` of a render folder.
+
+    Raises:
+        PipelineError: naming the file when it is missing, not JSON, of another format or
+            missing a key.
+    """
+    path = Path(root) / STATS_NAME
+    data: Any = read_json(path, hint=_HINT)
+    check_contract(data, RenderStats, path, STATS_FORMAT, _HINT)
+    return data

@@ -1,0 +1,191 @@
+"""The simulate step's output folder: a dive's photos and its ground truth (file contract).
+
+Layout (``README`` below is written into every folder, with the dive's values)::
+
+    raw/<name>.dng            camera raw: 16-bit RGGB mosaic, DNG 1.4 tags in the main IFD
+    jpeg/<name>.jpg           the same photo as an 8-bit sRGB JPEG (camera-like rendering)
+    truth/clean/<name>.tiff   clean linear radiance J, float32 (H, W, 3)
+    truth/water/<name>.tiff   linear water image I before the sensor, float32 (H, W, 3)
+    truth/depth/<name>.tiff   range z in metres, float32 (H, W)
+    truth/cameras.json        cameras (seathru-cameras/1); images point to truth/water/
+    truth/water.json          medium parameters of the image formation model
+    truth/sensor.json         sensor parameters and per-image exposure
+    truth/scene.json          scene geometry (seabed formula, objects, light, path)
+
+Images are named ``dive_0000``, ``dive_0001``, ... The writers here take ``seathru.sim.dive``
+objects. Readers: ``seathru.io.cameras.read_cameras`` (cameras.json),
+``seathru.io.water.read_truth_water`` (water.json), ``seathru.io.evaluation.read_truth_image``
+(truth images), ``seathru.io.dng`` (raw files).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from seathru.errors import PipelineError
+from seathru.io.atomic import write_json, write_text
+from seathru.io.cameras import CameraSet, Frame, write_cameras
+from seathru.io.dng import write_dng
+from seathru.io.images import write_8bit, write_float_tiff
+from seathru.sim.dive import DivePlan, DiveSpec, SimulatedView
+from seathru.sim.sensor import Pinhole, SensorConfig, jpeg_gain
+
+NAME_PREFIX = "dive_"
+NEAR_FAR_MARGIN = 0.05  # cameras.json near/far = (1 -+ margin) * min/max finite range
+JPEG_QUALITY = 95
+TRUTH_KINDS = ("clean", "water", "depth")
+
+
+def view_names(views: int) -> list[str]:
+    """``dive_0000``, ``dive_0001``, ... (sorted order is capture order)."""
+    return [f"{NAME_PREFIX}{i:04d}" for i in range(views)]
+
+
+def is_simulation(folder: str | os.PathLike) -> bool:
+    """Whether ``folder`` holds an earlier simulate output (its truth camera file)."""
+    return (Path(folder) / "truth" / "cameras.json").exists()
+
+
+def check_replaceable(out: str | os.PathLike) -> None:
+    """Refuse an output folder that exists and is neither empty nor an earlier simulation (it
+    would be replaced)."""
+    out = Path(out)
+    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not is_simulation(out))):
+        raise PipelineError(f"--out {out}: exists and is not an earlier simulate output; "
+                            "choose an empty or new folder (it would be replaced)")
+
+
+def view_range_limits(range_m: np.ndarray) -> tuple[float, float]:
+    """(min, max) finite range of a view in metres; (0.1, 10) when it sees only open water."""
+    finite = range_m[np.isfinite(range_m)]
+    if not finite.size:
+        return 0.1, 10.0
+    return float(finite.min()), float(finite.max())
+
+
+def truth_frame(name: str, camera: Pinhole, c2w: np.ndarray, range_m: np.ndarray,
+                split: str) -> Frame:
+    """The view's entry of ``truth/cameras.json``: near/far are the finite range bounds widened
+    by :data:`NEAR_FAR_MARGIN`."""
+    near, far = view_range_limits(range_m)
+    return Frame(name=name, image=f"water/{name}.tiff", width=camera.width, height=camera.height,
+                 fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy,
+                 c2w=[[float(v) for v in row] for row in c2w],
+                 near=(1.0 - NEAR_FAR_MARGIN) * near, far=(1.0 + NEAR_FAR_MARGIN) * far,
+                 split=split)
+
+
+def write_view(root: Path, name: str, view: SimulatedView, sensor: SensorConfig) -> None:
+    """The view's raw DNG, camera JPEG and truth images (clean, water, depth) under ``root``."""
+    root = Path(root)
+    exposure = view.exposure
+    write_dng(root / "raw" / f"{name}.dng", view.raw, black_level=sensor.black_level,
+              white_level=sensor.white_level, exposure_time_s=exposure.exposure_time_s,
+              iso=exposure.iso, f_number=exposure.f_number, cfa_pattern=sensor.cfa_pattern)
+    write_8bit(root / "jpeg" / f"{name}.jpg", view.jpeg, JPEG_QUALITY)
+    for kind, image in zip(TRUTH_KINDS, (view.clean, view.water, view.range_m)):
+        write_float_tiff(root / "truth" / kind / f"{name}.tiff", image)
+
+
+def write_records(root: Path, spec: DiveSpec, plan: DivePlan, frames: list[Frame],
+                  test_every: int, open_water_pixels: int) -> None:
+    """``truth/cameras.json``, ``water.json``, ``sensor.json``, ``scene.json`` and
+    ``README.md`` of a dive whose views are ``frames``."""
+    root = Path(root)
+    cameras = CameraSet(frames=frames, near=min(f.near for f in frames),
+                        far=max(f.far for f in frames), centre=[0.0, 0.0, 0.0], scale=1.0,
+                        source="simulated")
+    write_cameras(root / "truth" / "cameras.json", cameras)
+    write_json(root / "truth" / "water.json", spec.water.to_dict())
+    write_json(root / "truth" / "sensor.json", sensor_record(
+        spec.sensor, plan, [f.name for f in frames]))
+    scene = plan.scene.describe()
+    scene.update({"path": spec.path, "seed": spec.seed, "fov_deg": spec.fov_deg,
+                  "supersample": spec.supersample, "open_water_pixels": open_water_pixels})
+    write_json(root / "truth" / "scene.json", scene)
+    write_text(root / "README.md", readme(spec, test_every))
+
+
+def sensor_record(config: SensorConfig, plan: DivePlan, names: list[str]) -> dict:
+    """The content of ``truth/sensor.json``."""
+    record = config.to_dict()
+    record.update({
+        "bayer": "RGGB: R at (even row, even column), B at (odd row, odd column)",
+        "camera_colour_space": "linear sRGB (identity colour matrix)",
+        "dn_per_unit": plan.dn_per_unit,
+        "metered_radiance": plan.metered_radiance,
+        "signal_model": ("raw = clip(round(black_level + gain * Poisson(S / gain) + "
+                         "Normal(0, read_noise_dn)), 0, white_level) with S = I_channel * "
+                         "exposure_time_s * iso / 100 * dn_per_unit and gain = gain_iso100 * "
+                         "iso / 100 (DN per electron)"),
+        "jpeg": {"gain": jpeg_gain(config), "quality": JPEG_QUALITY,
+                 "model": ("jpeg = sRGB(clip(gain * (demosaic_bilinear(raw) - black_level) / "
+                           "(white_level - black_level), 0, 1)), 8 bit; no white balance")},
+        "images": {name: {"exposure_time_s": e.exposure_time_s, "iso": e.iso,
+                          "f_number": e.f_number, "ev_offset": e.ev_offset}
+                   for name, e in zip(names, plan.exposures)},
+    })
+    return record
+
+
+def readme(spec: DiveSpec, test_every: int) -> str:
+    """The folder's ``README.md``: layout, ground-truth definitions and the sensor model."""
+    water, config = spec.water, spec.sensor
+    return f"""# Simulated dive (seathru simulate)
+
+{spec.views} views, {spec.width}x{spec.height} pixels, path `{spec.path}`,
+water preset `{water.preset}`, seed {spec.seed}, horizontal field of view
+{spec.fov_deg} deg, {spec.supersample}x{spec.supersample} rays per pixel.
+Units: metres; world z up, seabed near z = 0. Images are named `{NAME_PREFIX}0000`,
+`{NAME_PREFIX}0001`, ...
+
+## Layout
+
+    raw/<name>.dng            camera raw: 16-bit RGGB mosaic, DNG 1.4 tags in the main IFD
+    jpeg/<name>.jpg           the same photo as an 8-bit sRGB JPEG (camera-like rendering)
+    truth/clean/<name>.tiff   clean linear radiance J, float32 (H, W, 3)
+    truth/water/<name>.tiff   linear water image I before the sensor, float32 (H, W, 3)
+    truth/depth/<name>.tiff   range z in metres, float32 (H, W)
+    truth/cameras.json        cameras (seathru-cameras/1); images point to truth/water/
+    truth/water.json          medium parameters of the image formation model
+    truth/sensor.json         sensor parameters and per-image exposure
+    truth/scene.json          scene geometry (seabed formula, objects, light, path)
+
+## Ground truth
+
+- **Range** `z` is the Euclidean distance from the camera centre to the surface along
+  the pixel's ray (not the z-depth). With s x s supersampling, a pixel's clean radiance
+  and range are the *means* over its subsamples. A pixel where any subsample sees no
+  surface (open water to infinity) has NaN range and NaN clean radiance; its water
+  image is `c_med`.
+- **Water image**, exact per pixel and channel (computed in float64 from the stored
+  clean image and range, then stored as float32):
+  `I = J * exp(-sigma_attn * z) + c_med * (1 - exp(-sigma_bs * z))` with
+  sigma_attn = {list(water.sigma_attn)} /m, sigma_bs = {list(water.sigma_bs)} /m,
+  c_med = {list(water.c_med)} (truth/water.json).
+- **Cameras**: pinhole, OpenCV axes (x right, y down, z forward), pixel centres at
+  +0.5, normalisation centre 0 and scale 1 (units are metres). A frame's `near`/`far`
+  are its minimum/maximum finite range times {1 - NEAR_FAR_MARGIN:.2f}/{1 + NEAR_FAR_MARGIN:.2f};
+  the scene-wide values are their min/max. In sorted name order, image 0, n, 2n, ...
+  (n = {test_every}) are `test`, the others `train`.
+
+## Sensor
+
+The camera's colour space is linear sRGB (identity colour matrix). Noise-free signal
+above black, in DN: `S = I * exposure_time_s * iso / 100 * dn_per_unit`, sampled
+through an RGGB Bayer mosaic, with Poisson shot noise (gain {config.gain_iso100} DN per
+electron at ISO 100, proportional to ISO) and Gaussian read noise
+({config.read_noise_dn} DN); black level {config.black_level} added, rounded, clipped to
+[0, {config.white_level}] (white level; {config.bit_depth}-bit data). Exposure time varies
+per image by up to +-{config.exposure_jitter_ev} EV around {config.nominal_exposure_s:.6f} s;
+ISO {config.iso}, f/{config.f_number}. A raw decoder without white balance or colour
+conversion returns `(raw - black) / (white - black) ~= clip(S / (white - black), 0, 1)`.
+ExposureTime, ISOSpeedRatings and FNumber are in the DNG's main IFD.
+
+The JPEG is the bilinearly demosaiced raw, normalised the same way, times one gain for
+the whole set (truth/sensor.json, `jpeg`), clipped and sRGB encoded, with no white
+balance: like a camera JPEG it keeps each image's exposure and noise.
+"""

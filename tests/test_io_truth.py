@@ -1,0 +1,92 @@
+"""seathru.io.truth: the simulate step's folder, written from a dive and read back by the readers
+the other steps use (cameras, water truth, truth images, DNG tags)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from seathru.errors import PipelineError
+from seathru.io import truth
+from seathru.io.cameras import read_cameras
+from seathru.io.dng import read_dng_metadata
+from seathru.io.evaluation import read_truth_image
+from seathru.io.images import read_image
+from seathru.io.water import read_truth_water
+from seathru.sim import dive
+from seathru.sim.water import water_params
+
+SPEC = dive.DiveSpec(views=2, width=16, height=12, path="transect",
+                     water=water_params("turbid", sigma_bs=[0.1, 0.2, 0.3]), seed=2,
+                     fov_deg=60.0, supersample=1, seabed_amplitude=0.0)
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    root = tmp_path_factory.mktemp("truth") / "dive"
+    plan = dive.plan_dive(SPEC, {})
+    views = list(dive.render_views(SPEC, plan))
+    names = truth.view_names(SPEC.views)
+    frames = []
+    for name, view in zip(names, views):
+        truth.write_view(root, name, view, SPEC.sensor)
+        frames.append(truth.truth_frame(name, plan.camera, view.c2w, view.range_m, "train"))
+    truth.write_records(root, SPEC, plan, frames, test_every=0, open_water_pixels=0)
+    return root, plan, dict(zip(names, views))
+
+
+def test_round_trip_through_the_readers(written):
+    root, plan, views = written
+    cameras = read_cameras(root / "truth" / "cameras.json")
+    assert [f.name for f in cameras.frames] == ["dive_0000", "dive_0001"]
+    water = read_truth_water(root / "truth" / "water.json")
+    assert (water.sigma_attn, water.sigma_bs, water.c_med) == (
+        SPEC.water.sigma_attn, SPEC.water.sigma_bs, SPEC.water.c_med)
+    sensor = json.loads((root / "truth" / "sensor.json").read_text())
+    assert sensor["dn_per_unit"] == plan.dn_per_unit
+    for frame in cameras.frames:
+        view = views[frame.name]
+        np.testing.assert_array_equal(read_image(cameras.image_path(frame)), view.water)
+        np.testing.assert_array_equal(read_truth_image(root / "truth", "clean", frame.name),
+                                      view.clean)
+        depth = read_truth_image(root / "truth", "depth", frame.name)
+        np.testing.assert_array_equal(depth, view.range_m)
+        assert frame.near == pytest.approx((1 - truth.NEAR_FAR_MARGIN) * np.nanmin(depth))
+        assert frame.far == pytest.approx((1 + truth.NEAR_FAR_MARGIN) * np.nanmax(depth))
+        np.testing.assert_allclose(frame.c2w_array, view.c2w)
+        tags = read_dng_metadata(root / "raw" / f"{frame.name}.dng")
+        assert tags["exposure_time_s"] == view.exposure.exposure_time_s
+        assert sensor["images"][frame.name]["iso"] == tags["iso"] == view.exposure.iso
+        jpeg = read_image(root / "jpeg" / f"{frame.name}.jpg")
+        assert np.abs(jpeg - view.jpeg).mean() < 0.03  # 8-bit JPEG of the developed image
+    readme = (root / "README.md").read_text()
+    assert "water preset `turbid+custom`" in readme and "[0.1, 0.2, 0.3] /m" in readme
+
+
+def test_open_water_view_gets_default_bounds():
+    assert truth.view_range_limits(np.full((2, 2), np.nan, np.float32)) == (0.1, 10.0)
+    assert truth.view_range_limits(np.array([[np.nan, 2.0], [3.0, 4.0]])) == (2.0, 4.0)
+
+
+def test_only_empty_or_earlier_simulations_are_replaced(written, tmp_path):
+    root, _, _ = written
+    truth.check_replaceable(root)                 # an earlier simulation
+    truth.check_replaceable(tmp_path / "new")     # absent
+    (tmp_path / "empty").mkdir()
+    truth.check_replaceable(tmp_path / "empty")
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "keep.jpg").write_bytes(b"x")
+    (tmp_path / "file").write_text("x")
+    for foreign in ("photos", "file"):
+        with pytest.raises(PipelineError, match=f"{foreign}: exists and is not an earlier"):
+            truth.check_replaceable(tmp_path / foreign)
+
+
+def test_a_malformed_water_truth_is_refused_naming_the_file(written, tmp_path):
+    bad = tmp_path / "water.json"
+    data = json.loads((written[0] / "truth" / "water.json").read_text())
+    bad.write_text(json.dumps({**data, "sigma_bs": [0.1, 0.2]}))
+    with pytest.raises(PipelineError, match="water.json"):
+        read_truth_water(bad)
