@@ -25,7 +25,9 @@ from seathru.eval import display
 from seathru.sim.scene import look_at
 from seathru.io.cameras import CameraSet, Frame, read_cameras, write_cameras
 from seathru.io.images import read_image, write_float_tiff
-from seathru.steps.render import count_video_frames, render_dataset
+from seathru.io.water import WaterReport, WaterValues, write_water
+from seathru.io.renders import count_video_frames
+from seathru.steps.render import render_dataset
 
 WATER = {"sigma_attn": [0.55, 0.25, 0.20], "sigma_bs": [0.45, 0.30, 0.25],
          "c_med": [0.04, 0.20, 0.28]}
@@ -96,13 +98,11 @@ def make_fake_dataset(root: Path, views: int = 8, test_every: int = 4, seed: int
 
     train_dir = root / "train"
     train_dir.mkdir(parents=True, exist_ok=True)
-    (train_dir / "water.json").write_text(json.dumps({
-        "normalised": {"sigma_attn": (sigma_a * METRES_PER_UNIT).tolist(),
-                       "sigma_bs": (sigma_b * METRES_PER_UNIT).tolist(),
-                       "c_med": (c_med / GAIN).tolist()},
-        "source_units": {"sigma_attn": (sigma_a / SOURCE_PER_METRE).tolist(),
-                         "sigma_bs": (sigma_b / SOURCE_PER_METRE).tolist(),
-                         "c_med": (c_med / GAIN).tolist()}}))
+    write_water(train_dir / "water.json", WaterReport(
+        mode="global", scale=NORMALISATION_SCALE,
+        normalised=WaterValues(sigma_attn=tuple(sigma_a * METRES_PER_UNIT),
+                               sigma_bs=tuple(sigma_b * METRES_PER_UNIT),
+                               c_med=tuple(c_med / GAIN))))
     pd.DataFrame({"step": [0, 50, 100], "wall_time_s": [0.5, 20.0, 41.5],
                   "loss": [0.1, 0.01, 0.005], "train_psnr": [10.0, 20.0, 25.0],
                   "test_psnr": [9.0, np.nan, 24.0]}).to_csv(train_dir / "train_log.csv",
@@ -184,6 +184,31 @@ def test_render_cli_reports_a_missing_model(tmp_path, fake, capsys):
     assert code == 2
     assert "model file not found" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--depth-cmap", "no-such-map"], "depth_cmap 'no-such-map' is not a matplotlib colour map"),
+    (["--path-frames", "-1"], "path_frames must be >= 0"),
+    (["--path-downscale", "0"], "path_downscale must be >= 1"),
+    (["--fps", "0"], "fps must be positive")])
+def test_render_cli_refuses_bad_settings_naming_them(tmp_path, fake, capsys, flags, message):
+    code = main(["render", "--model", str(tmp_path / "none.pt"), "--cameras",
+                 str(fake["poses"] / "cameras.json"), "--out", str(tmp_path / "r"), *flags])
+    assert code == 2 and message in capsys.readouterr().err
+
+
+def test_path_frames_follow_the_training_cameras(fake):
+    from seathru.eval.camera_path import path_frames
+
+    cameras = read_cameras(fake["poses"] / "cameras.json")
+    frames = path_frames(cameras, 5)
+    first = sorted(cameras.split("train"), key=lambda f: f.name)[0]
+    assert [f.name for f in frames] == [f"path_{i:04d}" for i in range(5)]
+    for frame in frames:
+        assert (frame.split, frame.image, frame.near, frame.far) == ("path", "", cameras.near,
+                                                                     cameras.far)
+        assert (frame.fx, frame.width, frame.height) == (first.fx, first.width, first.height)
+    np.testing.assert_allclose(frames[0].c2w_array[:3, 3], first.c2w_array[:3, 3], atol=1e-9)
 
 
 # -------------------------------------------------------------------------------------- evaluate
@@ -353,7 +378,7 @@ def test_real_model_through_render_and_evaluate(tmp_path):
     """A few dozen training steps: the steps agree on every file contract."""
     dataset = make_simulated_poses(tmp_path / "tiny", views=14, width=48, height=36)
     result = train_render_evaluate(dataset, ["--steps", "30", "--max-minutes", "0",
-                                             "--medium", "global", "--batch-rays", "512",
+                                             "--medium.mode", "global", "--batch-rays", "512",
                                              "--eval-rays", "256"], path_frames=3)
     render = tmp_path / "tiny" / "render"
     views = sorted(p.name for p in (render / "test").iterdir())
@@ -388,7 +413,7 @@ def test_trained_model_restores_and_recovers_depth(tmp_path):
     time budget, so the outcome does not depend on the machine's speed."""
     dataset = make_simulated_poses(tmp_path / "small", views=24, width=80, height=60)
     result = train_render_evaluate(dataset, ["--steps", "1200", "--max-minutes", "0",
-                                             "--medium", "global", "--seed", "0"],
+                                             "--medium.mode", "global", "--seed", "0"],
                                    path_frames=0)
     table = result["table"]
     assert (table["restored_psnr_linear"] > table["full_vs_clean_psnr_linear"]).all()

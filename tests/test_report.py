@@ -121,3 +121,23 @@ def test_report_rejects_a_sheet_without_dataset_column(tmp_path, capsys):
     assert main(["report", "--results", str(tmp_path), "--datasets", str(sheet),
                  "--out", str(tmp_path / "out")]) == 2
     assert "no 'dataset' column" in capsys.readouterr().err
+
+
+def test_report_rejects_bad_strip_settings(tmp_path, capsys):
+    sheet = tmp_path / "sheet.tsv"
+    sheet.write_text("dataset\nx\n")
+    assert main(["report", "--results", str(tmp_path), "--datasets", str(sheet),
+                 "--out", str(tmp_path / "out"), "--strip-views", "0"]) == 2
+    assert "strip_views must be >= 1" in capsys.readouterr().err
+
+
+def test_a_damaged_summary_fails_its_dataset_not_the_report(tmp_path):
+    (tmp_path / "results" / "bad" / "evaluate").mkdir(parents=True)
+    (tmp_path / "results" / "bad" / "evaluate" / "summary.json").write_text('{"format": 1}')
+    sheet = tmp_path / "sheet.tsv"
+    sheet.write_text("dataset\nbad\n")
+    assert main(["report", "--results", str(tmp_path / "results"), "--datasets", str(sheet),
+                 "--out", str(tmp_path / "out")]) == 0
+    row = pd.read_csv(tmp_path / "out" / "summary.csv").iloc[0]
+    assert row["status"] == "failed" and row["failed_step"] == "evaluate"
+    assert "summary.json: expected format 'seathru-evaluation/1'" in row["error"]

@@ -26,5 +26,6 @@ rule evaluate:
         "../../envs/seathru.yaml"
     shell:
         "seathru evaluate --renders {input.renders} --cameras {input.poses}/cameras.json "
-        "--train-dir {params.train_dir} {params.truth} --out {params.out} {params.flags} "
+        "--train-dir {params.train_dir} {params.truth} --out {params.out} --threads {threads} "
+        "{params.flags} "
         "> {log} 2>&1"

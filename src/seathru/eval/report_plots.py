@@ -1,0 +1,206 @@
+"""The report's plots, as matplotlib figures (the caller saves them; :func:`figure_png` renders
+one to PNG bytes and closes it). No file I/O.
+
+- :func:`plot_psnr_vs_time`: held-out PSNR during training against training time, per dataset;
+- :func:`plot_speed_vs_error`: render frames per second and training time against held-out PSNR;
+- :func:`plot_water_parameters`: fitted water parameters per dataset and channel, truth markers;
+- :func:`plot_strip`: ground truth | full render | restored | depth | backscatter for a few
+  held-out views of one dataset.
+
+Call ``matplotlib.use("Agg")`` first on machines without a display.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from seathru.eval.report import DatasetRecord, water_values
+from seathru.eval.truth import WATER_KEYS
+
+STRIP_COLUMNS = (("gt", "ground truth"), ("full", "full render"), ("restored", "restored"),
+                 ("depth", "depth"), ("backscatter", "backscatter"))
+CHANNEL_COLOURS = ("#d62728", "#2ca02c", "#1f77b4")
+WATER_TITLES = {"sigma_attn": "attenuation sigma_attn", "sigma_bs": "backscatter sigma_bs",
+                "c_med": "medium colour c_med"}
+
+
+def figure_png(figure, dpi: int = 110) -> bytes:
+    """The figure as PNG bytes (tight bounding box); the figure is closed."""
+    import matplotlib.pyplot as plt
+
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=dpi, bbox_inches="tight")
+    plt.close(figure)
+    return buffer.getvalue()
+
+
+def _empty_axes(axes, text: str) -> None:
+    axes.text(0.5, 0.5, text, ha="center", va="center", transform=axes.transAxes, color="0.4")
+    axes.set_xticks([])
+    axes.set_yticks([])
+
+
+def _final_psnr_and_time(record: DatasetRecord) -> tuple[float | None, float | None]:
+    summary = record.summary
+    if summary is None:
+        return None, None
+    psnr = summary.means.get("psnr_linear")
+    return psnr, summary.training.time_s if summary.training else None
+
+
+def plot_psnr_vs_time(records: Sequence[DatasetRecord]):
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(figsize=(7, 4.5))
+    drawn = False
+    for index, record in enumerate(records):
+        table = record.train_log
+        colour = f"C{index % 10}"
+        if table is not None and {"wall_time_s", "test_psnr"} <= set(table.columns):
+            curve = table[["wall_time_s", "test_psnr"]].apply(pd.to_numeric, errors="coerce")
+            curve = curve.dropna()
+            if len(curve):
+                axes.plot(curve["wall_time_s"], curve["test_psnr"], "-o", ms=3, color=colour,
+                          label=record.dataset)
+                drawn = True
+        psnr, time_s = _final_psnr_and_time(record)
+        if psnr is not None and time_s is not None:
+            axes.plot([time_s], [psnr], "*", ms=12, color=colour,
+                      label=None if drawn else record.dataset)
+            drawn = True
+    if not drawn:
+        _empty_axes(axes, "no training logs")
+    else:
+        axes.set_xlabel("training time (s)")
+        axes.set_ylabel("held-out PSNR, linear (dB)")
+        axes.set_title("Held-out PSNR during training (star: final evaluation)")
+        axes.grid(alpha=0.3)
+        axes.legend(fontsize=8)
+    return figure
+
+
+def plot_speed_vs_error(records: Sequence[DatasetRecord]):
+    import matplotlib.pyplot as plt
+
+    figure, (left, right) = plt.subplots(1, 2, figsize=(10, 4.2))
+    points = []
+    for record in records:
+        psnr, time_s = _final_psnr_and_time(record)
+        if psnr is None:
+            continue
+        label = record.dataset + (f"\n{record.options}" if record.options else "")
+        points.append((label, record.summary.render.fps, time_s, psnr))
+    for axes, column, xlabel in ((left, 1, "render speed (frames per second, held-out views)"),
+                                 (right, 2, "training time (s)")):
+        usable = [p for p in points if p[column] is not None and p[column] > 0]
+        if not usable:
+            _empty_axes(axes, "no finished datasets")
+            continue
+        for index, point in enumerate(usable):
+            axes.scatter(point[column], point[3], color=f"C{index % 10}", s=40)
+            axes.annotate(point[0], (point[column], point[3]), fontsize=7,
+                          xytext=(4, 4), textcoords="offset points")
+        values = [p[column] for p in usable]
+        if max(values) > 10 * min(values):   # a log axis only pays off over a decade or more
+            axes.set_xscale("log")
+        axes.set_xlabel(xlabel)
+        axes.set_ylabel("held-out PSNR, linear (dB)")
+        axes.grid(alpha=0.3, which="both")
+    figure.suptitle("Speed against quality across datasets and settings")
+    return figure
+
+
+def plot_water_parameters(records: Sequence[DatasetRecord]):
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, 3, figsize=(12, 4))
+    entries = [(r.dataset, *water_values(r)) for r in records]
+    entries = [e for e in entries if e[1]]
+    first_truth = next((i for i, e in enumerate(entries) if e[2]), -1)
+    width = 0.8 / 3
+    for key, ax in zip(WATER_KEYS, axes):
+        if not entries:
+            _empty_axes(ax, "no fitted water parameters")
+            ax.set_title(key)
+            continue
+        for d, (dataset, fitted, truth, unit) in enumerate(entries):
+            values = fitted.get(key)
+            if values is None:
+                continue
+            for c, value in enumerate(np.ravel(values)[:3]):
+                x = d + (c - 1) * width
+                ax.bar(x, value, width, color=CHANNEL_COLOURS[c],
+                       label=("R", "G", "B")[c] if d == 0 else None)
+                if truth and truth.get(key) is not None:
+                    ax.plot([x], [np.ravel(truth[key])[c]], marker="_", color="black",
+                            markersize=14, markeredgewidth=2.5,
+                            label="truth" if (d, c) == (first_truth, 0) else None)
+        ax.set_xticks(range(len(entries)))
+        ax.set_xticklabels([f"{e[0]}\n({e[3]})" if key != "c_med" else e[0] for e in entries],
+                           fontsize=8, rotation=0)
+        ax.set_title(WATER_TITLES[key])
+        ax.grid(alpha=0.3, axis="y")
+    if entries:
+        axes[0].legend(fontsize=8)
+    figure.suptitle("Fitted water parameters per channel (black: simulation truth; 1/m where "
+                    "the truth is known)")
+    figure.tight_layout()
+    return figure
+
+
+def strip_views(views: Sequence[str], count: int) -> list[str]:
+    """At most ``count`` of the (sorted) held-out views, spread evenly over them."""
+    views = sorted(views)
+    if len(views) <= count:
+        return views
+    return [views[i] for i in np.linspace(0, len(views) - 1, count).round().astype(int)]
+
+
+def plot_strip(record: DatasetRecord,
+               images: Mapping[str, Mapping[str, np.ndarray | None]], height: int):
+    """Rows of held-out views: ground truth | full | restored | depth | backscatter, or None
+    when there is no image.
+
+    Args:
+        images: view -> {column name of :data:`STRIP_COLUMNS` -> display image (H, W, 3) in
+            [0, 1], or None when missing}.
+        height: height in pixels of one image.
+    """
+    import matplotlib.pyplot as plt
+
+    views = list(images)
+    first = next((image for view in views for name, _ in STRIP_COLUMNS
+                  if (image := images[view].get(name)) is not None), None)
+    if first is None:
+        return None
+    psnr = {}
+    if record.metrics is not None and "psnr_linear" in record.metrics:
+        psnr = dict(zip(record.metrics["view"].astype(str), record.metrics["psnr_linear"]))
+    aspect = first.shape[1] / first.shape[0]
+    inches = height / 100
+    figure, axes = plt.subplots(len(views), len(STRIP_COLUMNS), squeeze=False,
+                                figsize=(len(STRIP_COLUMNS) * inches * aspect + 0.6,
+                                         len(views) * inches + 0.5))
+    for r, view in enumerate(views):
+        for c, (name, title) in enumerate(STRIP_COLUMNS):
+            ax = axes[r, c]
+            image = images[view].get(name)
+            if image is not None:
+                ax.imshow(np.clip(image, 0, 1))
+            else:
+                _empty_axes(ax, "missing")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(title, fontsize=9)
+            if c == 0:
+                label = view + (f"\n{psnr[view]:.2f} dB" if view in psnr
+                                and pd.notna(psnr[view]) else "")
+                ax.set_ylabel(label, fontsize=8)
+    figure.suptitle(f"{record.dataset}: held-out views", fontsize=10)
+    figure.subplots_adjust(wspace=0.02, hspace=0.05)
+    return figure

@@ -1,0 +1,139 @@
+"""Comparison of a simulated dataset's results with the simulator's truth. Pure, no file I/O.
+
+- colour gain: the ingest step normalises exposure and white-balances, so the pipeline's linear
+  values differ from the simulator's by one gain per channel. It is fitted once per dataset by
+  least squares between the full renders and the truth images *with water* (pooled over the
+  held-out views, :func:`pooled_gain`), and the same gain is applied to the restored renders
+  before comparing them with the clean truth ``J`` (and to the fitted medium colour ``c_med``),
+  over the pixels where ``J`` is defined (open-water pixels have none). The full render compared
+  with the clean truth is reported too: the restoration should beat it;
+- metric scale (:func:`camera_metric_scale`): camera centres of the evaluated camera file
+  (normalised units) are aligned to the truth centres (metres) by a similarity (Umeyama); its
+  scale converts predicted depths to metres and fitted coefficients to 1/m (the camera files'
+  centres come from ``seathru.io.evaluation.camera_centres``);
+- water parameters (:func:`compare_water`): relative error per channel of sigma_attn, sigma_bs
+  (1/m) and c_med.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+
+import numpy as np
+
+from seathru.eval import metrics
+from seathru.eval.summary import MetricScale, TruthSummary, WaterComparison
+
+SIGMA_KEYS = ("sigma_attn", "sigma_bs")
+WATER_KEYS = (*SIGMA_KEYS, "c_med")
+COLOUR_GAIN_NOTE = ("per-channel least-squares gain fitted between the full renders and the "
+                    "truth images with water (held-out views pooled), applied to restored "
+                    "renders and c_med")
+
+
+def camera_metric_scale(centres: Mapping[str, np.ndarray], truth_centres: Mapping[str, np.ndarray],
+                        normalisation_scale: float) -> MetricScale:
+    """Metres per normalised unit of the evaluated cameras, from every camera both sets know.
+
+    Args:
+        centres: camera name -> centre ``(3,)`` in the evaluated camera file (normalised units).
+        truth_centres: camera name -> true centre ``(3,)`` in metres.
+        normalisation_scale: the evaluated camera file's ``scale`` (normalised units per source
+            unit), used alone when fewer than three cameras are shared: the source units are then
+            taken to be the truth's.
+
+    Returns:
+        the scale; with three or more shared cameras from a similarity alignment of their
+        centres (:func:`seathru.eval.metrics.metric_scale`), with its residuals.
+
+    Example::
+
+        scale = camera_metric_scale(centres, truth_centres, cameras.scale)
+        depth_m = depth * scale.scale
+    """
+    shared = sorted(set(centres) & set(truth_centres))
+    if len(shared) < 3:
+        return MetricScale(scale=1.0 / normalisation_scale, rms_residual=float("nan"),
+                           relative_residual=float("nan"),
+                           method="camera-file normalisation only (fewer than 3 shared cameras)")
+    fit = metrics.metric_scale(np.stack([centres[n] for n in shared]),
+                               np.stack([truth_centres[n] for n in shared]))
+    return MetricScale(scale=fit["scale"], rms_residual=fit["rms_residual"],
+                       relative_residual=fit["relative_residual"],
+                       method=f"similarity alignment of {len(shared)} camera centres")
+
+
+def pooled_gain(pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """One least-squares colour gain ``(3,)`` over all ``(prediction, target)`` image pairs
+    (each ``(H, W, 3)``; the pairs may be produced lazily, one view in memory at a time)."""
+    cross, power = np.zeros(3), np.zeros(3)
+    for prediction, target in pairs:
+        c, p = metrics.channel_gain_sums(prediction, target)
+        cross, power = cross + c, power + p
+    return metrics.gain_from_sums(cross, power)
+
+
+def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndarray,
+                       clean: np.ndarray, water: np.ndarray, truth_depth: np.ndarray,
+                       gain: np.ndarray, metres_per_unit: float) -> dict[str, float]:
+    """The truth columns of ``metrics.csv`` for one held-out view.
+
+    Args:
+        full, restored: the renders ``(H, W, 3)``, pipeline colour scale.
+        depth: rendered depth ``(H, W)``, normalised units.
+        clean: the clean truth ``(H, W, 3)``, NaN where a pixel sees open water (not scored).
+        water: the truth with water ``(H, W, 3)``.
+        truth_depth: the true range ``(H, W)`` in metres.
+        gain: ``(3,)`` from :func:`pooled_gain`; metres_per_unit: from
+            :func:`camera_metric_scale`.
+    """
+    defined = np.all(np.isfinite(clean), axis=-1)
+    restored_m = metrics.image_metrics(gain * restored, clean, valid=defined)
+    baseline = metrics.image_metrics(gain * full, clean, valid=defined)
+    fit = metrics.image_metrics(gain * full, water)
+    depth_m = metrics.depth_errors(depth * metres_per_unit, truth_depth)
+    return {
+        "restored_psnr_linear": restored_m["psnr_linear"],
+        "restored_ssim_linear": restored_m["ssim_linear"],
+        "restored_psnr_srgb": restored_m["psnr_srgb"],
+        "restored_ssim_srgb": restored_m["ssim_srgb"],
+        "full_vs_clean_psnr_linear": baseline["psnr_linear"],
+        "full_vs_clean_ssim_linear": baseline["ssim_linear"],
+        "full_vs_water_psnr_linear": fit["psnr_linear"],
+        "depth_median_abs_rel": depth_m["depth_median_abs_rel"],
+        "depth_corr": depth_m["depth_corr"],
+        "depth_rmse_m": depth_m["depth_rmse"],
+    }
+
+
+def compare_water(fitted: Mapping[str, Sequence[float]] | None,
+                  truth: Mapping[str, Sequence[float]], metres_per_unit: float,
+                  gain: np.ndarray) -> WaterComparison:
+    """The fitted water against the truth, per channel.
+
+    Args:
+        fitted: ``sigma_attn``, ``sigma_bs`` (per normalised unit) and ``c_med`` (pipeline
+            colour scale) of the trained model, each ``(3,)``; None when there is none.
+        truth: the same keys in 1/m and the simulator's colour scale.
+        metres_per_unit, gain: from :func:`camera_metric_scale` and :func:`pooled_gain`.
+
+    Returns:
+        the truth, the fitted values converted to 1/m (divided by ``metres_per_unit``) and to the
+        truth's colour scale (c_med times ``gain``), and the relative error per channel.
+    """
+    result = WaterComparison(truth={k: [float(x) for x in truth[k]] for k in WATER_KEYS})
+    if fitted is None:
+        return result
+    converted = {key: (np.asarray(fitted[key], dtype=np.float64) / metres_per_unit).tolist()
+                 for key in SIGMA_KEYS}
+    converted["c_med"] = (np.asarray(fitted["c_med"], dtype=np.float64) * gain).tolist()
+    result.fitted = converted
+    result.relative_error = {key: metrics.relative_error(converted[key], truth[key]).tolist()
+                             for key in WATER_KEYS}
+    return result
+
+
+def truth_summary(gain: np.ndarray, scale: MetricScale, water: WaterComparison) -> TruthSummary:
+    """The ``truth`` section of ``summary.json``."""
+    return TruthSummary(colour_gain=np.asarray(gain, dtype=np.float64).tolist(),
+                        colour_gain_note=COLOUR_GAIN_NOTE, metric_scale=scale, water=water)

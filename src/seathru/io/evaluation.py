@@ -1,0 +1,190 @@
+"""Files of the evaluate step and the inputs only it reads.
+
+- ``evaluate/summary.json`` (format ``seathru-evaluation/1``): a
+  :class:`seathru.eval.summary.EvaluationSummary` with a ``format`` key first; written by the
+  evaluate step, read by the report;
+- ``evaluate/metrics.csv``: one row per held-out view (:class:`seathru.eval.summary.ViewMetrics`),
+  columns ``VIEW_COLUMNS`` then, for simulated datasets, ``TRUTH_COLUMNS``; ``lpips`` holds a
+  number or ``unavailable``;
+- inputs: the render step's held-out renders ``test/<view>/<name>.tiff``, the simulator's truth
+  images ``truth/<kind>/<view>.tiff``, camera centres of a camera file, ``train/train_log.csv``
+  (written by the train step) as a table, and LPIPS weights (torch state dicts on disk, never
+  downloaded).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import types
+import typing
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from seathru.errors import PipelineError
+from seathru.eval.summary import (VIEW_COLUMNS, EvaluationSummary, ViewMetrics,
+                                  metrics_table)
+from seathru.io.atomic import write_json, write_text
+from seathru.io.cameras import CameraSet
+from seathru.io.images import read_image
+from seathru.io.jsonfile import json_safe, read_json
+from seathru.io.water import WaterReport
+
+EVALUATION_FORMAT = "seathru-evaluation/1"
+
+
+# ------------------------------------------------------------------------------ summary.json
+
+def _to_json(value: Any) -> Any:
+    if dataclasses.is_dataclass(value):
+        return {f.name: _to_json(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, dict):
+        return {k: _to_json(v) for k, v in value.items()}
+    return json_safe(value)
+
+
+_PLAIN = {float: (int, float), int: (int,), str: (str,), dict: (dict,), list: (list,)}
+
+
+def _from_json(tp: Any, value: Any, where: str, source: str) -> Any:
+    """``value`` checked against the annotation ``tp``; dataclasses built recursively."""
+    origin = typing.get_origin(tp)
+    options = typing.get_args(tp) if origin in (typing.Union, types.UnionType) else (tp,)
+    if value is None:
+        if type(None) in options:
+            return None
+        raise PipelineError(f"{source}: {where} must not be null")
+    for option in options:
+        base = typing.get_origin(option) or option
+        if dataclasses.is_dataclass(option):
+            if not isinstance(value, dict):
+                raise PipelineError(f"{source}: {where} must be an object")
+            hints = typing.get_type_hints(option)
+            missing = [f.name for f in dataclasses.fields(option) if f.name not in value
+                       and f.default is dataclasses.MISSING
+                       and f.default_factory is dataclasses.MISSING]
+            if missing:
+                raise PipelineError(f"{source}: {where}.{missing[0]} is missing")
+            known = {f.name for f in dataclasses.fields(option)}
+            return option(**{k: _from_json(hints[k], v, f"{where}.{k}", source)
+                             for k, v in value.items() if k in known})
+        if base in _PLAIN and isinstance(value, _PLAIN[base]) and not isinstance(value, bool):
+            return float(value) if base is float else value
+    raise PipelineError(f"{source}: {where} has the wrong type ({value!r:.60})")
+
+
+def write_summary(path: str | os.PathLike, summary: EvaluationSummary) -> None:
+    """Write ``summary.json`` atomically (NaN and infinities as null)."""
+    write_json(path, {"format": EVALUATION_FORMAT, **_to_json(summary)})
+
+
+def read_summary(path: str | os.PathLike) -> EvaluationSummary:
+    """Read ``summary.json``.
+
+    Raises:
+        PipelineError: naming the file when it is missing, not JSON, of another format or
+        malformed.
+    """
+    data = read_json(path, hint="run the 'evaluate' step")
+    if not isinstance(data, dict) or data.get("format") != EVALUATION_FORMAT:
+        found = data.get("format") if isinstance(data, dict) else type(data).__name__
+        raise PipelineError(f"{path}: expected format {EVALUATION_FORMAT!r}, found {found!r}; "
+                            "re-run the 'evaluate' step")
+    if data.get("water_fitted") is not None:
+        WaterReport.from_dict(data["water_fitted"], f"{path} (water_fitted)")
+    fields = {k: v for k, v in data.items() if k != "format"}
+    return _from_json(EvaluationSummary, fields, "summary", str(path))
+
+
+# ------------------------------------------------------------------------------- metrics.csv
+
+def write_metrics(path: str | os.PathLike, rows: list[ViewMetrics] | pd.DataFrame) -> None:
+    """Write ``metrics.csv`` atomically."""
+    table = rows if isinstance(rows, pd.DataFrame) else metrics_table(rows)
+    write_text(path, table.to_csv(index=False, float_format="%.6g"))
+
+
+def read_metrics(path: str | os.PathLike) -> pd.DataFrame:
+    """Read ``metrics.csv`` (``view`` as text).
+
+    Raises:
+        PipelineError: naming the file when it is missing, unreadable or lacks a column.
+    """
+    try:
+        table = pd.read_csv(path, dtype={"dataset": str, "view": str})
+    except FileNotFoundError:
+        raise PipelineError(f"{path}: file not found; run the 'evaluate' step") from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        raise PipelineError(f"{path}: cannot be read as a table ({exc})") from None
+    missing = [c for c in VIEW_COLUMNS if c not in table.columns]
+    if missing:
+        raise PipelineError(f"{path}: missing columns {missing}; re-run the 'evaluate' step")
+    return table
+
+
+# ------------------------------------------------------------------------ inputs of evaluation
+
+def read_render(renders: str | os.PathLike, view: str, name: str) -> np.ndarray:
+    """A held-out render (``full``, ``restored``, ``depth``, ...) of the render step."""
+    path = Path(renders) / "test" / view / f"{name}.tiff"
+    if not path.is_file():
+        raise PipelineError(f"{path}: render not found; re-run the 'render' step with the same "
+                            "cameras.json")
+    return read_image(path)
+
+
+def camera_centres(cameras: CameraSet, *, source_units: bool = False) -> dict[str, np.ndarray]:
+    """Camera centres ``(3,)`` by frame name: in the file's normalised units, or with
+    ``source_units`` in the units of the source reconstruction (``c / scale + centre``; metres
+    for the simulator's truth cameras)."""
+    centre = np.asarray(cameras.centre, dtype=np.float64)
+    return {f.name: f.c2w_array[:3, 3] / cameras.scale + centre if source_units
+            else f.c2w_array[:3, 3] for f in cameras.frames}
+
+
+def read_truth_image(truth_dir: str | os.PathLike, kind: str, view: str) -> np.ndarray:
+    """A simulated view's truth (``clean``, ``water`` or ``depth``) from the simulate step."""
+    path = Path(truth_dir) / kind / f"{view}.tiff"
+    if not path.is_file():
+        raise PipelineError(f"{path}: truth image not found; re-run the 'simulate' step")
+    return read_image(path)
+
+
+def read_train_log(path: str | os.PathLike) -> pd.DataFrame | None:
+    """The train step's ``train_log.csv`` as a table; None when it does not exist."""
+    if not Path(path).is_file():
+        return None
+    try:
+        return pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        raise PipelineError(f"{path}: cannot be read as a table ({exc})") from None
+
+
+def read_lpips_weights(path: str | os.PathLike) -> dict | None:
+    """The merged state dict of the LPIPS weights at ``path``; None when ``path`` does not exist.
+
+    ``path``: one ``.pth`` file, or a folder whose ``.pth`` / ``.pt`` files are merged (the
+    torchvision backbone and the lpips v0.1 linear layers).
+
+    Raises:
+        PipelineError: naming a file that exists but is not a torch state dict.
+    """
+    path = Path(path)
+    if not path.exists():
+        return None
+    import torch
+
+    files = sorted(p for p in path.iterdir() if p.suffix in (".pth", ".pt")) \
+        if path.is_dir() else [path]
+    state: dict = {}
+    for file in files:
+        try:
+            loaded = torch.load(file, map_location="cpu", weights_only=True)
+        except Exception as exc:
+            raise PipelineError(f"{file}: cannot be read as a torch state dict ({exc})") from None
+        if isinstance(loaded, dict):
+            state.update(loaded)
+    return state

@@ -1,0 +1,79 @@
+"""Comparison with the simulator's truth (seathru.eval.truth): hand-worked values and exact
+recoveries of fabricated transforms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from seathru.eval import metrics, truth
+
+TRUTH = {"sigma_attn": [0.55, 0.25, 0.20], "sigma_bs": [0.45, 0.30, 0.25],
+         "c_med": [0.04, 0.20, 0.28]}
+GAIN = np.array([2.0, 1.25, 0.8])
+
+
+def test_compare_water_converts_units_and_colour_then_takes_relative_errors():
+    metres_per_unit = 2.0
+    fitted = {"sigma_attn": [1.1, 0.5, 0.44],   # 1/m after / 2: 0.55, 0.25, 0.22 (B 10 % high)
+              "sigma_bs": [0.9, 0.6, 0.5],
+              "c_med": [0.02, 0.16, 0.35]}         # * GAIN: 0.04, 0.2, 0.28
+    result = truth.compare_water(fitted, TRUTH, metres_per_unit, GAIN)
+    np.testing.assert_allclose(result.fitted["sigma_attn"], [0.55, 0.25, 0.22])
+    np.testing.assert_allclose(result.fitted["c_med"], TRUTH["c_med"])
+    np.testing.assert_allclose(result.relative_error["sigma_attn"], [0.0, 0.0, 0.1], atol=1e-12)
+    np.testing.assert_allclose(result.relative_error["sigma_bs"], [0.0, 0.0, 0.0], atol=1e-12)
+    assert result.truth == TRUTH
+
+
+def test_compare_water_without_a_fit_reports_the_truth_alone():
+    result = truth.compare_water(None, TRUTH, 2.0, GAIN)
+    assert result.fitted is None and result.relative_error is None
+    assert result.truth["sigma_bs"] == TRUTH["sigma_bs"]
+
+
+def test_metric_scale_undoes_a_similarity():
+    rng = np.random.default_rng(3)
+    metres = rng.normal(size=(5, 3)) * 3.0
+    rotation = Rotation.from_euler("xyz", [10, 40, -70], degrees=True).as_matrix()
+    normalised = 0.4 * metres @ rotation.T + [1.0, -2.0, 0.5]   # 0.4 units per metre
+    names = [f"v{i}" for i in range(5)]
+    truth_centres = dict(zip(names, metres))
+    truth_centres["only_in_truth"] = np.array([100.0, 0.0, 0.0])
+    scale = truth.camera_metric_scale(dict(zip(names, normalised)), truth_centres, 0.1)
+    assert scale.scale == pytest.approx(2.5, rel=1e-9)
+    assert scale.relative_residual < 1e-9 and "5 camera centres" in scale.method
+
+
+def test_metric_scale_with_too_few_shared_cameras_uses_the_normalisation():
+    centres = {name: np.zeros(3) for name in "abcd"}
+    scale = truth.camera_metric_scale(centres, {"a": np.ones(3), "x": np.ones(3)}, 0.25)
+    assert scale.scale == 4.0 and "fewer than 3" in scale.method
+
+
+def test_pooled_gain_equals_one_fit_over_all_views():
+    rng = np.random.default_rng(0)
+    predictions = [rng.random((6, 5, 3)) for _ in range(3)]
+    targets = [p * GAIN + rng.normal(0, 0.01, p.shape) for p in predictions]
+    pooled = truth.pooled_gain(zip(predictions, targets))
+    together = metrics.fit_channel_gain(np.concatenate(predictions), np.concatenate(targets))
+    np.testing.assert_allclose(pooled, together, rtol=1e-12)
+    np.testing.assert_allclose(pooled, GAIN, rtol=0.02)
+
+
+def test_view_truth_metrics_scores_defined_pixels_in_metres():
+    rng = np.random.default_rng(1)
+    clean = rng.uniform(0.1, 0.9, (16, 16, 3))
+    clean[:3, :3] = np.nan                          # open water: no clean value
+    restored = np.nan_to_num(clean) / GAIN          # exact after the gain
+    full = restored * 0.5 + 0.1
+    truth_depth = rng.uniform(1.0, 5.0, (16, 16))
+    row = truth.view_truth_metrics(full=full, restored=restored, depth=truth_depth / 3.0,
+                                   clean=clean, water=full * GAIN, truth_depth=truth_depth,
+                                   gain=GAIN, metres_per_unit=3.0)
+    assert row["restored_psnr_linear"] == float("inf")
+    assert row["full_vs_water_psnr_linear"] == float("inf")
+    assert row["full_vs_clean_psnr_linear"] < 30
+    assert row["depth_median_abs_rel"] == pytest.approx(0.0, abs=1e-12)
+    assert row["depth_corr"] == pytest.approx(1.0)
