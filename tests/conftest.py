@@ -22,3 +22,18 @@ def shared_data() -> Path:
 def repo_root() -> Path:
     return REPO_ROOT
 
+
+
+COMMON_SMK = REPO_ROOT / "workflow" / "rules" / "common.smk"
+WORKFLOW_GLUE_MARKER = "# ====="
+
+
+def workflow_helpers() -> dict:
+    """The plain-Python helpers of workflow/rules/common.smk (everything above its "workflow
+    glue" line, which needs none of Snakemake's globals), as a namespace."""
+    text = COMMON_SMK.read_text()
+    head, marker, _ = text.partition(WORKFLOW_GLUE_MARKER)
+    assert marker, f"{COMMON_SMK}: no '{WORKFLOW_GLUE_MARKER}... workflow glue' line"
+    namespace: dict = {"__name__": "common_smk"}
+    exec(compile(head, str(COMMON_SMK), "exec"), namespace)
+    return namespace

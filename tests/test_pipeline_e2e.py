@@ -1,10 +1,11 @@
-"""End to end through the real Snakemake API: a tiny collection of dive datasets.
+"""End to end through the real Snakemake API: the tiny configuration of .test/.
 
-Two simulated dives (one with water, one clear) and one dataset made of the corrupt raw files in
-../shared/data/raw/bad/. The good ones must produce metrics and the report; the bad one must fail
-with its clear message and appear in the report; a rerun has nothing to do for the good ones;
-changing one dataset's option reruns only that dataset's affected stages; a training job killed
-with SIGKILL resumes from its checkpoint when the workflow is rerun.
+Two simulated dives (one with water, one clear) and one dataset made of corrupt raw files
+(.test/bad_raw/), run from a copy of .test/ (`snakemake --directory .test` runs the same). The
+good ones must produce metrics and the report; the bad one must fail with its clear message and
+appear in the report; a rerun has nothing to do for the good ones; changing one dataset's option
+reruns only that dataset's affected stages; a training job killed with SIGKILL resumes from its
+checkpoint when the workflow is rerun.
 """
 
 from __future__ import annotations
@@ -27,36 +28,19 @@ from snakemake.api import SnakemakeApi
 from snakemake.settings.types import (ConfigSettings, DAGSettings, ExecutionSettings,
                                       OutputSettings, ResourceSettings)
 
-from tests.conftest import REPO_ROOT, SHARED_DATA
+from tests.conftest import REPO_ROOT
 
 pytestmark = pytest.mark.slow
 
 SNAKEFILE = REPO_ROOT / "workflow" / "Snakefile"
 BIN = Path(sys.executable).parent
-TINY = {
-    "simulate": {"views": 12, "width": 160, "height": 120, "path": "orbit", "seed": 0},
-    "train": {"max_minutes": 10.0, "steps": 60, "checkpoint_every": 10},
-    "render": {"path_frames": 4, "path_downscale": 2},
-}
+TEST_CONFIG = REPO_ROOT / ".test"
 
 
-def _write_collection(workdir: Path) -> None:
-    config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
-    for step, values in TINY.items():
-        config[step] = {**(config.get(step) or {}), **values}
-    config["datasets"] = "config/datasets.tsv"
-    (workdir / "config").mkdir(parents=True)
-    (workdir / "config" / "config.yaml").write_text(yaml.safe_dump(config))
-    bad = workdir / "bad_raw"
-    bad.mkdir()
-    for path in sorted((SHARED_DATA / "raw" / "bad").rglob("*")):
-        if path.is_file():
-            (bad / f"{path.parent.name}_{path.name}").symlink_to(path)
-    rows = ["dataset\tsource\tpath\toptions",
-            "sim_water\tsimulated\t\t",
-            "sim_clear\tsimulated\t\tsimulate.water=clear",
-            f"bad_raw\traw\t{bad}\t"]
-    (workdir / "config" / "datasets.tsv").write_text("\n".join(rows) + "\n")
+def _copy_test_configuration(workdir: Path) -> None:
+    """.test/ (config, sheet, bad_raw/) copied into ``workdir``, without earlier outputs."""
+    shutil.copytree(TEST_CONFIG, workdir, dirs_exist_ok=True,
+                    ignore=shutil.ignore_patterns("results", "logs", ".snakemake", "report.html"))
 
 
 def run_workflow(workdir: Path, targets: tuple[str, ...] = (), dryrun: bool = False) -> bool:
@@ -98,9 +82,9 @@ def _env() -> dict:
 
 
 @pytest.fixture(scope="module")
-def finished_collection(tmp_path_factory, shared_data):
+def finished_collection(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("collection")
-    _write_collection(workdir)
+    _copy_test_configuration(workdir)
     succeeded = run_workflow(workdir)
     return workdir, succeeded
 
@@ -182,4 +166,5 @@ def test_killed_training_resumes_from_its_checkpoint(finished_collection):
     train_log = (workdir / "logs" / "sim_water" / "train.log").read_text()
     assert re.search(r"[Rr]esum", train_log), train_log[-3000:]
     log = pd.read_csv(workdir / "results" / "sim_water" / "train" / "train_log.csv")
-    assert log["step"].max() == TINY["train"]["steps"]
+    config = yaml.safe_load((workdir / "config" / "config.yaml").read_text())
+    assert log["step"].max() == config["train"]["steps"]

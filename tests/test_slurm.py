@@ -32,7 +32,8 @@ from tests.conftest import REPO_ROOT
 pytestmark = pytest.mark.slow
 
 PROFILE = REPO_ROOT / "workflow" / "profiles" / "slurm"
-DATASET = "tiny"
+TEST_CONFIG = REPO_ROOT / ".test"
+DATASET = "sim_water"  # the first row of .test/config/datasets.tsv
 SNAKEMAKE_TIMEOUT_S = 600
 
 
@@ -66,15 +67,15 @@ def slurm_cluster() -> dict[str, int]:
 
 
 def _workdir(tmp_path: Path, node: dict[str, int]) -> Path:
-    """A working directory with a one-row sheet (the tiny simulated dive) and tiny settings."""
-    config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    """A working directory with .test/'s configuration and its first dataset (a tiny simulated
+    dive) alone, with resource requests that fit the node."""
+    config = yaml.safe_load((TEST_CONFIG / "config" / "config.yaml").read_text())
+    header, first_row = (TEST_CONFIG / "config" / "datasets.tsv").read_text().splitlines()[:2]
+    assert first_row.split("\t")[:2] == [DATASET, "simulated"], first_row
     (tmp_path / "config").mkdir()
     sheet = tmp_path / "config" / "datasets.tsv"
-    sheet.write_text(f"dataset\tsource\tpath\toptions\n{DATASET}\tsimulated\t\t\n")
+    sheet.write_text(f"{header}\n{first_row}\n")
     config["datasets"] = str(sheet)
-    config["simulate"].update(views=12, width=160, height=120)
-    config["train"]["max_minutes"] = 0.5
-    config["render"]["path_frames"] = 4
     # Small requests that fit the node (a 2-core CI machine): SLURM rejects what cannot fit.
     threads, mem_mb = min(2, node["cpus"]), min(2000, node["mem_mb"])
     config["resources"] = {

@@ -1,9 +1,13 @@
-"""The Snakemake workflow: dry runs, lint, profiles, sheet validation, environment pins."""
+"""The Snakemake workflow: dry runs, lint, profiles, sheet and config validation against the
+generated schema, the flags the rules pass, the conda environment and its post-deploy script,
+the catalog conventions (.test/, LICENSE)."""
 
 from __future__ import annotations
 
 import os
 import re
+import shlex
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +15,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.conftest import REPO_ROOT
+from tests.conftest import REPO_ROOT, workflow_helpers
 
 try:
     import tomllib
@@ -58,8 +62,19 @@ def _sheet(tmp_path: Path, rows: list[str], header: str = "dataset\tsource\tpath
         (["d1\tsimulated\t\tsimulate.views"], None, "not of the form step.key=value"),
         (["d1\tsimulated\t\tpainting.x=1"], None, "unknown step 'painting'"),
         (["d1\tsimulated\t\tingest.out=/tmp"], None, "set by the workflow"),
+        (["d1\tsimulated\t\ttrain.threads=8"], None, "train.threads is set by the workflow"),
         (["d 1\tsimulated\t\t"], None, "field 'dataset'"),
         (["d1\tsimulated\t\t", "d1\tsimulated\t\t"], None, "appears more than once"),
+        (["d1\tsimulated\t\t", "x\tsimulated\t\ttrain.medium.mode=soup"], None,
+         r"row 3 \(dataset 'x'\): train\.medium\.mode: 'soup' is not one of"),
+        (["d1\tsimulated\t\ttrain.medium=off"], None,
+         r"row 2 \(dataset 'd1'\): train\.medium is a section, not a value"),
+        (["d1\tsimulated\t\ttrain.medium.no_such=1"], None,
+         r"train\.medium\.no_such is not a setting of 'seathru train'"),
+        (["d1\tsimulated\t\ttrain.max_minutes=soon"], None,
+         r"train\.max_minutes: 'soon' is not of type 'number'"),
+        (["d1\tsimulated\t\ttrain.seed=1; train.seed.x=2"], None,
+         "train.seed is given a value and also used as a section"),
     ],
 )
 def test_malformed_sheet_is_refused_before_any_job(tmp_path, rows, header, expected):
@@ -68,23 +83,120 @@ def test_malformed_sheet_is_refused_before_any_job(tmp_path, rows, header, expec
     assert result.returncode != 0
     output = result.stdout + result.stderr
     assert re.search(expected, output), output[-2000:]
+    assert "rule " not in result.stdout, "jobs were planned"
 
 
-def test_unknown_option_of_an_existing_step_is_refused(tmp_path):
-    from seathru.cli import build_parser
+def _schema() -> dict:
+    return yaml.safe_load((REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml").read_text())
 
-    steps = build_parser()._subparsers._group_actions[0].choices
-    step = next(iter(steps))
+
+@pytest.mark.parametrize("step", ["simulate", "ingest", "poses", "train", "render", "evaluate"])
+def test_unknown_option_of_each_step_is_refused_naming_row_and_field(tmp_path, step):
+    if step not in _schema()["properties"]:
+        pytest.fail(f"the config schema has no section {step!r}: run bash .ci/generate.sh")
     sheet = _sheet(tmp_path, [f"d1\tsimulated\t\t{step}.no_such_flag=1"])
     result = snakemake("-n", "--cores", "1", "--config", f"datasets={sheet}")
     assert result.returncode != 0
-    assert f"{step}.no_such_flag is not an option of 'seathru {step}'" in result.stdout + result.stderr
+    assert (f"{sheet} row 2 (dataset 'd1'): {step}.no_such_flag is not a setting of "
+            f"'seathru {step}'") in result.stdout + result.stderr
 
 
-def test_wrong_config_value_is_refused():
-    result = snakemake("-n", "--cores", "1", "--config", "resources={default: {threads: 0}}")
+@pytest.mark.parametrize(
+    ("override", "expected"),
+    [
+        ("resources={default: {threads: 0}}", r"resources\.default\.threads: 0 is less than"),
+        ("train={medium: {mode: soup}}", r"train\.medium\.mode: 'soup' is not one of"),
+        ("train={no_such: 1}", r"train\.no_such is not a setting of 'seathru train'"),
+        ("trian={seed: 1}", r"trian is not a configuration key"),
+    ],
+)
+def test_wrong_config_value_is_refused(override, expected):
+    result = snakemake("-n", "--cores", "1", "--config", override)
     assert result.returncode != 0
-    assert "threads" in result.stdout + result.stderr
+    assert re.search(expected, result.stdout + result.stderr), (result.stdout + result.stderr)[-2000:]
+
+
+def test_nested_config_values_given_as_text_are_read_as_values():
+    # Snakemake reads nested --config values as text: '5', 'false', ['64', '96']
+    result = snakemake("-n", "-p", "--cores", "1", "--forceall", "--config",
+                       "train={max_minutes: 5, progress: false, field: {density_res: [64, 96]}, "
+                       "medium: {mode: off}}")
+    assert result.returncode == 0, result.stderr[-2000:]
+    train = next(line for line in result.stdout.splitlines() if "seathru train" in line)
+    for flags in ("--max-minutes 5", "--no-progress", "--field.density-res 64 96",
+                  "--medium.mode off"):
+        assert flags in train, train
+
+
+def test_step_sections_may_be_left_out_of_the_config(tmp_path):
+    config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    config = {key: value for key, value in config.items()
+              if key in ("datasets", "results", "logs", "resources")}
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    result = snakemake("-n", "--cores", "1", "--forceall", "--configfile",
+                       str(tmp_path / "config.yaml"))
+    assert result.returncode == 0, result.stderr[-2000:]
+
+
+def _shell_commands(output: str) -> dict[tuple[str, str], str]:
+    """(step, dataset) -> the shell command a dry run with -p prints for that job."""
+    commands = {}
+    for line in output.splitlines():
+        match = re.match(r"^\s*(?:Shell command: )?(seathru (\w+) .*)$", line)
+        if match:
+            argv = shlex.split(match.group(1).split(" > ")[0])
+            dataset = next((Path(argv[i + 1]).parent.name for i, arg in enumerate(argv)
+                            if arg == "--out"), None)
+            commands[(match.group(2), dataset)] = match.group(1)
+    return commands
+
+
+def test_rules_pass_nested_options_as_flags_that_parse_back(tmp_path):
+    """Config section + sheet options -> the rule's flags -> `seathru <step>`'s parser gives
+    back the same settings (nested sections, booleans, lists, YAML 1.1 words, exponents)."""
+    from seathru import settings
+    from seathru.cli import build_parser
+
+    config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    # as Snakemake reads `mode: off` (YAML 1.1): False
+    config["train"] = {**config.get("train", {}), "medium": {"mode": False}, "progress": False}
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    options = ("simulate.water=clear; train.medium.sigma_init=1e-3; "
+               "train.field.view_dependent_colour=true; train.field.density_res=[64, 96, 128]; "
+               "train.device=cuda:0; render.path_frames=3")
+    sheet = _sheet(tmp_path, ["plain\tsimulated\t\t", f"tuned\tsimulated\t\t{options}"])
+    result = snakemake("-n", "-p", "--cores", "1", "--forceall", "--configfile",
+                       str(tmp_path / "config.yaml"), "--config", f"datasets={sheet}")
+    assert result.returncode == 0, result.stderr[-3000:]
+    commands = _shell_commands(result.stdout)
+    train = commands[("train", "tuned")]
+    assert "--medium.mode off" in train and "--no-progress" in train, train
+    assert "--field.density-res 64 96 128" in train and "--medium.sigma-init 0.001" in train
+    assert "--medium.mode off" in commands[("train", "plain")]
+    assert "--field" not in commands[("train", "plain")]
+
+    helpers = workflow_helpers()
+    sheet_options = helpers["parse_options"](options, "test")
+    parser = build_parser()
+    checked = 0
+    for (step, dataset), command in sorted(commands.items()):
+        module = __import__(f"seathru.steps.{step}", fromlist=["Settings"])
+        if step == "report" or not hasattr(module, "Settings"):
+            continue
+        argv = shlex.split(command.split(" > ")[0])[1:]
+        parsed = settings.flatten(settings.to_dict(
+            settings.from_namespace(module.Settings, parser.parse_args(argv))))
+        wanted = helpers["deep_merge"](config.get(step) or {},
+                                       sheet_options.get(step, {}) if dataset == "tuned" else {})
+        expected = settings.flatten(settings.to_dict(settings.from_mapping(module.Settings,
+                                                                           wanted)))
+        given = settings.flatten(wanted)
+        # settings the rule sets from the dataset's source (ingest --kind raw) are not compared
+        for key, value in expected.items():
+            if key in given or f"--{key.replace('_', '-')} " not in command:
+                assert parsed[key] == value, (step, dataset, key, command)
+        checked += 1
+    assert checked >= 2, f"no step with Settings was checked: {sorted(commands)}"
 
 
 def test_conda_environment_has_the_same_pins_as_pyproject():
@@ -105,3 +217,121 @@ def test_readme_test_command_is_what_ci_runs():
     commands = [line for line in block if line and not line.startswith(("#", "bash"))]
     assert len(commands) == 2
     assert commands[1] in (REPO_ROOT / ".ci" / "run").read_text()
+
+
+
+def test_conda_environment_installs_the_package_after_creation_by_absolute_path():
+    env = yaml.safe_load((REPO_ROOT / "envs" / "seathru.yaml").read_text())
+    pip_section = next(d["pip"] for d in env["dependencies"] if isinstance(d, dict))
+    relative = [dep for dep in pip_section if dep.startswith("-") or "/" in dep or dep == "."]
+    assert not relative, f"paths in the env file resolve against .snakemake/conda/: {relative}"
+    script = REPO_ROOT / "envs" / "seathru.post-deploy.sh"
+    assert script.read_text().startswith("#!"), "Snakemake picks the interpreter from the shebang"
+
+
+def _fake_python(tmp_path: Path) -> tuple[dict, Path]:
+    """An environment whose `python` only records its arguments (as `pip install` would get)."""
+    bin_dir, log = tmp_path / "bin", tmp_path / "python-calls.log"
+    bin_dir.mkdir()
+    (bin_dir / "python").write_text(f'#!/bin/sh\necho "$PWD|$*" >> {shlex.quote(str(log))}\n')
+    (bin_dir / "python").chmod(0o755)
+    env = {k: v for k, v in os.environ.items() if k != "SEATHRU_SOURCE_DIR"}
+    env["PATH"] = f"{bin_dir}{os.pathsep}{env['PATH']}"
+    return env, log
+
+
+def _deploy_copy(workdir: Path) -> Path:
+    """The post-deploy script where Snakemake puts it: <workdir>/.snakemake/conda/<hash>...."""
+    target = workdir / ".snakemake" / "conda" / "0123abcd.post-deploy.sh"
+    target.parent.mkdir(parents=True)
+    shutil.copy(REPO_ROOT / "envs" / "seathru.post-deploy.sh", target)
+    return target
+
+
+def _run_deploy(script: Path, cwd: Path, env: dict) -> subprocess.CompletedProcess:
+    # as Snakemake runs it: the shebang's interpreter, the copy's path, the working directory
+    interpreter = script.read_text().splitlines()[0][2:].split()
+    return subprocess.run([*interpreter, str(script.relative_to(cwd)) if script.is_relative_to(cwd)
+                           else str(script)], cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=60)
+
+
+def test_post_deploy_installs_the_checkout_the_workflow_names(tmp_path):
+    workdir = tmp_path / "work"
+    script = _deploy_copy(workdir)
+    env, log = _fake_python(tmp_path)
+    env["SEATHRU_SOURCE_DIR"] = str(REPO_ROOT)
+    result = _run_deploy(script, workdir, env)
+    assert result.returncode == 0, result.stderr
+    assert log.read_text().splitlines() == [
+        f"{workdir.resolve()}|-m pip install --no-deps --editable {REPO_ROOT.resolve()}"]
+
+
+def test_post_deploy_finds_the_checkout_above_its_copy(tmp_path):
+    checkout = tmp_path / "checkout"
+    script = _deploy_copy(checkout)
+    shutil.copy(REPO_ROOT / "pyproject.toml", checkout / "pyproject.toml")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    env, log = _fake_python(tmp_path)
+    result = _run_deploy(script, elsewhere, env)
+    assert result.returncode == 0, result.stderr
+    assert log.read_text().split("|")[1].split() == [
+        "-m", "pip", "install", "--no-deps", "--editable", str(checkout.resolve())]
+
+
+@pytest.mark.parametrize("source_dir", [None, "not-a-checkout"])
+def test_post_deploy_without_a_checkout_fails_saying_what_to_set(tmp_path, source_dir):
+    workdir = tmp_path / "work"
+    script = _deploy_copy(workdir)
+    env, log = _fake_python(tmp_path)
+    if source_dir:
+        (tmp_path / source_dir).mkdir()
+        env["SEATHRU_SOURCE_DIR"] = str(tmp_path / source_dir)
+    result = _run_deploy(script, workdir, env)
+    assert result.returncode != 0
+    assert "SEATHRU_SOURCE_DIR" in result.stderr and "seathru-pipeline" in result.stderr
+    assert not log.exists(), "pip ran without a checkout"
+
+
+def test_the_workflow_tells_post_deploy_its_checkout(tmp_path):
+    code = (
+        "import os\n"
+        "from pathlib import Path\n"
+        "from snakemake.api import SnakemakeApi\n"
+        "from snakemake.settings.types import (ConfigSettings, DAGSettings, OutputSettings,\n"
+        "                                      ResourceSettings)\n"
+        f"repo = Path({str(REPO_ROOT)!r})\n"
+        "with SnakemakeApi(OutputSettings()) as api:\n"
+        "    api.workflow(resource_settings=ResourceSettings(cores=1),\n"
+        "                 config_settings=ConfigSettings(configfiles=[repo / 'config/config.yaml']),\n"
+        "                 snakefile=repo / 'workflow/Snakefile', workdir=repo).dag(DAGSettings())\n"
+        "print('SOURCE=' + os.environ.get('SEATHRU_SOURCE_DIR', ''))\n")
+    env = {k: v for k, v in os.environ.items() if k != "SEATHRU_SOURCE_DIR"}
+    result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env,
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert f"SOURCE={REPO_ROOT.resolve()}" in result.stdout.splitlines()
+
+
+def test_license_file_matches_pyproject():
+    if tomllib is None:
+        pytest.skip("tomllib needs Python 3.11")
+    licence = tomllib.loads((REPO_ROOT / "pyproject.toml").read_text())["project"]["license"]
+    name = licence["text"] if isinstance(licence, dict) else licence
+    assert (REPO_ROOT / "LICENSE").read_text().splitlines()[0] == f"{name} License"
+
+
+def test_test_configuration_plans_every_stage_of_its_datasets(tmp_path):
+    """`.test/` is the tiny end-to-end configuration (`snakemake --directory .test`)."""
+    workdir = tmp_path / "test-config"
+    shutil.copytree(REPO_ROOT / ".test", workdir,
+                    ignore=shutil.ignore_patterns("results", "logs", ".snakemake"))
+    result = snakemake("-n", "--cores", "1", "--directory", str(workdir))
+    assert result.returncode == 0, result.stderr[-2000:]
+    sheet = (workdir / "config" / "datasets.tsv").read_text()
+    simulated = sheet.count("\tsimulated\t")
+    datasets = len([line for line in sheet.splitlines()[1:] if line and not line.startswith("#")])
+    for rule, count in (("simulate", simulated), ("ingest", datasets), ("train", datasets),
+                        ("report", 1)):
+        assert re.search(rf"^{rule}\s+{count}$", result.stdout, re.M), (rule, result.stdout)

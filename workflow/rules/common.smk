@@ -1,77 +1,265 @@
-import json
+# Helpers of the workflow. Everything above the "workflow glue" line is plain Python that needs
+# none of Snakemake's globals: tests load it alone (tests/test_workflow.py, test_settings.py).
+import os
 import re
 import shlex
 import subprocess
 import sys
 from pathlib import Path
 
+import jsonschema
 import pandas as pd
 import yaml
 from snakemake.utils import validate
 
-validate(config, schema="../schemas/config.schema.yaml")
-
 SOURCES = ("simulated", "raw", "images", "llff", "colmap", "nerfstudio")
 STEPS = ("simulate", "ingest", "poses", "train", "render", "evaluate", "report")
-RESULTS = config["results"]
-LOGS = config["logs"]
-# Flags the rules set themselves; a dataset's options may not override them.
-RESERVED_FLAGS = {"input", "out", "threads", "cameras", "model", "renders", "train_dir", "truth",
-                  "ingest", "source", "source_dir", "checkpoint_dir", "results", "datasets", "logs",
-                  "subdir"}
+# Flags the workflow sets itself in each step's shell line; neither a dataset's options nor
+# the config may set them. Thread counts (`threads`, `workers`) come from `resources`.
+RESERVED_FLAGS = {
+    "simulate": {"out"},
+    "ingest": {"input", "out", "subdir", "workers"},
+    "poses": {"ingest", "out", "threads", "source", "source_dir"},
+    "train": {"cameras", "out", "checkpoint_dir", "threads"},
+    "render": {"model", "cameras", "out", "threads"},
+    "evaluate": {"renders", "cameras", "train_dir", "truth", "out", "threads"},
+    "report": {"results", "datasets", "logs", "out"},
+}
 
 
 class SheetError(ValueError):
     """A malformed dataset sheet or configuration, found before any job starts."""
 
 
-def _step_flag_names():
-    """Long option names of every step's CLI, or None when the package is not importable here."""
-    try:
-        from seathru.cli import build_parser
-    except ImportError:
-        return None
-    parser = build_parser()
-    names = {}
-    for action in parser._subparsers._group_actions:
-        for step, sub in action.choices.items():
-            long_names = {opt[2:].replace("-", "_") for act in sub._actions
-                          for opt in act.option_strings if opt.startswith("--")}
-            # --no-x negates a boolean --x, which the config writes as x: false
-            names[step] = long_names | {n.removeprefix("no_") for n in long_names}
-    return names
+class OptionValueLoader(yaml.SafeLoader):
+    """YAML for one value of the sheet's options column, with YAML 1.2 scalars: only true/false
+    are booleans (`train.medium.mode=off` stays the string 'off') and 1e-3 is a number."""
 
 
-STEP_FLAGS = _step_flag_names()
+OptionValueLoader.yaml_implicit_resolvers = {
+    first: [(tag, regexp) for tag, regexp in resolvers if tag != "tag:yaml.org,2002:bool"]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+OptionValueLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF"))
+OptionValueLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+.0123456789"))
 
 
-def _check_step_keys(where, step, keys):
-    if step not in STEPS:
-        raise SheetError(f"{where}: unknown step {step!r}; steps are {', '.join(STEPS)}")
-    bad = sorted(set(keys) & RESERVED_FLAGS)
-    if bad:
-        raise SheetError(f"{where}: {step}.{bad[0]} is set by the workflow and cannot be overridden")
-    if STEP_FLAGS is not None and step in STEP_FLAGS:
-        unknown = sorted(set(keys) - STEP_FLAGS[step])
-        if unknown:
-            raise SheetError(
-                f"{where}: {step}.{unknown[0]} is not an option of 'seathru {step}' "
-                f"(see 'seathru {step} --help')")
+def parse_options(text, where, reserved=RESERVED_FLAGS, steps=STEPS):
+    """The options column, 'step.key=value; step.section.key=value', as nested dicts.
 
-
-def _parse_options(text, where):
+    >>> parse_options("train.medium.mode=off; train.seed=1", "row 2")
+    {'train': {'medium': {'mode': 'off'}, 'seed': 1}}
+    """
     options = {}
     for item in filter(None, (part.strip() for part in text.split(";"))):
         key, sep, value = item.partition("=")
-        step, dot, name = key.strip().partition(".")
-        if not sep or not dot or not name:
-            raise SheetError(f"{where}: option {item!r} is not of the form step.key=value")
-        _check_step_keys(where, step, [name])
-        options.setdefault(step, {})[name] = yaml.safe_load(value.strip())
+        parts = [part.strip() for part in key.split(".")]
+        if not sep or len(parts) < 2 or not all(parts):
+            raise SheetError(f"{where}: option {item!r} is not of the form step.key=value "
+                             "(or step.section.key=value)")
+        step, names = parts[0], parts[1:]
+        check_reserved(where, step, names[0], reserved, steps)
+        node = options.setdefault(step, {})
+        for depth, name in enumerate(names[:-1], start=1):
+            node = node.setdefault(name, {})
+            if not isinstance(node, dict):
+                raise SheetError(f"{where}: {'.'.join(parts[:depth + 1])} is given a value and "
+                                 "also used as a section")
+        if names[-1] in node:
+            raise SheetError(f"{where}: {key.strip()} is given twice (or is also a section)")
+        try:
+            node[names[-1]] = yaml.load(value.strip(), Loader=OptionValueLoader)
+        except yaml.YAMLError as exc:
+            raise SheetError(f"{where}: {key.strip()}: {value.strip()!r} is not a valid value "
+                             f"({' '.join(str(exc).split())})") from None
     return options
 
 
-def load_sheet(path):
+def check_reserved(where, step, name, reserved=RESERVED_FLAGS, steps=STEPS):
+    if step not in steps:
+        raise SheetError(f"{where}: unknown step {step!r}; steps are {', '.join(steps)}")
+    if name in reserved.get(step, ()):
+        raise SheetError(f"{where}: {step}.{name} is set by the workflow and cannot be overridden")
+
+
+def deep_merge(base, overrides):
+    """``base`` updated by ``overrides``, recursing into nested sections (neither is changed)."""
+    merged = dict(base or {})
+    for key, value in (overrides or {}).items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = deep_merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def flatten_options(options, prefix=""):
+    """``{"a": {"b": 1}}`` -> ``{"a.b": 1}`` (as seathru.settings.flatten)."""
+    flat = {}
+    for key, value in options.items():
+        if isinstance(value, dict):
+            flat.update(flatten_options(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+# YAML 1.1 (Snakemake's config loader) reads off/on/no/yes as booleans: a boolean given for a
+# setting that is not boolean stands for the word (`mode: off`), as in seathru.settings.
+YAML11_WORDS = {False: ("off", "no", "false"), True: ("on", "yes", "true")}
+
+
+def schema_node(schema, dotted):
+    """The schema of the dotted setting ``a.b`` inside a section's schema, or None."""
+    node = schema
+    for part in dotted.split("."):
+        node = (node or {}).get("properties", {}).get(part)
+        if node is None:
+            return None
+    return node
+
+
+def yaml11_word(value, node):
+    """``value`` (a boolean) as the word it was, when ``node`` (its schema) is not boolean."""
+    if node is None:
+        return value
+    types = node.get("type", [])
+    if "boolean" in (types if isinstance(types, list) else [types]):
+        return value
+    if "enum" in node:
+        choices = [choice for choice in node["enum"] if isinstance(choice, str)]
+        if choices:
+            return next((word for word in YAML11_WORDS[value] if word in choices), value)
+    return YAML11_WORDS[value][0]
+
+
+def flag_list(options, schema=None):
+    """Nested options as CLI arguments: ``--section.key-name VALUE``, booleans ``--x``/``--no-x``,
+    lists as several values, None left out. With the section's ``schema``, a boolean given for a
+    setting that is not boolean is its YAML 1.1 word (``mode: off`` -> ``--mode off``).
+
+    The same output as ``seathru.settings.cli_flags(options, Settings)`` (tests/test_settings.py
+    compares them); a copy, because the Snakemake process need not be able to import the package
+    (with ``--software-deployment-method conda`` only the jobs' environment has it).
+    """
+    args = []
+    for key, value in sorted(flatten_options(options).items()):
+        name = key.replace("_", "-")
+        if value is None:
+            continue
+        if isinstance(value, bool) and schema is not None:
+            value = yaml11_word(value, schema_node(schema, key))
+        if isinstance(value, bool):
+            args.append(f"--{name}" if value else f"--no-{name}")
+        elif isinstance(value, (list, tuple)):
+            args += [f"--{name}", *map(str, value)]
+        else:
+            args += [f"--{name}", str(value)]
+    return args
+
+
+def cli_flags(options, schema=None):
+    """The options as one shell-quoted string of flags for a rule's shell line."""
+    return " ".join(shlex.quote(arg) for arg in flag_list(options, schema))
+
+
+def _known_names(schema):
+    return ", ".join(schema.get("properties", {})) or "none"
+
+
+def schema_error_message(error, prefix=()):
+    """One line for a jsonschema error: the dotted field and what is wrong with it."""
+    path = [*prefix, *map(str, error.absolute_path)]
+    field = ".".join(path)
+    schema, instance = error.schema, error.instance
+    if error.validator == "additionalProperties" and isinstance(instance, dict):
+        unknown = sorted(set(instance) - set(schema.get("properties", {})))
+        name = ".".join([*path, unknown[0]])
+        if not path:
+            return f"{name} is not a configuration key; keys are {_known_names(schema)}"
+        where = f" of 'seathru {path[0]}'" if path[0] in STEPS else ""
+        return (f"{name} is not a setting{where}; known here: {_known_names(schema)} "
+                "(every setting: config/README.md)")
+    if error.validator == "type" and "properties" in schema and not isinstance(instance, dict):
+        return (f"{field} is a section, not a value: set its fields ({field}.<name>, one of "
+                f"{_known_names(schema)})")
+    if error.validator == "type" and isinstance(instance, dict) and path:
+        return f"{field} is a setting, not a section: give it a value ({field}=...)"
+    message = f"{field}: {error.message}" if field else error.message
+    if isinstance(instance, bool) and "enum" in schema:
+        message += " (YAML reads off/no/on/yes as booleans: quote the word, e.g. 'off')"
+    return message
+
+
+def _types(node):
+    types = node.get("type", [])
+    return set(types if isinstance(types, list) else [types])
+
+
+def read_text_values(data, schema):
+    """``data`` with text standing for a number, boolean or list where the schema wants one read
+    as a sheet value is: Snakemake reads nested ``--config`` values as text
+    (``--config "train={max_minutes: 5}"`` gives '5')."""
+    if isinstance(data, dict):
+        properties = schema.get("properties", {})
+        extra = schema.get("additionalProperties")
+        return {key: read_text_values(value, properties.get(key, extra if isinstance(extra, dict)
+                                                              else {}))
+                for key, value in data.items()}
+    if isinstance(data, list) and isinstance(schema.get("items"), dict):
+        return [read_text_values(item, schema["items"]) for item in data]
+    wants_text = "string" in _types(schema) or any(isinstance(c, str)
+                                                   for c in schema.get("enum", []))
+    if isinstance(data, str) and not wants_text and (_types(schema) or "enum" in schema):
+        try:
+            return yaml.load(data, Loader=OptionValueLoader)
+        except yaml.YAMLError:
+            return data
+    return data
+
+
+def schema_errors(schema, instance, prefix=()):
+    """Every error of ``instance`` against ``schema`` as messages, in path order."""
+    validator = jsonschema.validators.validator_for(schema)(schema)
+    errors = sorted(validator.iter_errors(instance), key=lambda e: [str(p) for p in e.absolute_path])
+    return [schema_error_message(error, prefix) for error in errors]
+
+
+def check_config(config, schema):
+    """Refuse a configuration with a reserved, unknown or ill-typed key (naming the field)."""
+    for step in STEPS:
+        for name in config.get(step) or {}:
+            check_reserved(f"configuration section '{step}'", step, name)
+    errors = schema_errors(schema, config)
+    if errors:
+        listing = "\n  ".join(errors)
+        raise SheetError(f"configuration (config/config.yaml and --config): {listing}")
+
+
+def check_dataset_options(config, options, where, schema):
+    """Each step's config section updated by a row's options must satisfy the config schema."""
+    errors = []
+    for step, overrides in options.items():
+        merged = deep_merge(config.get(step) or {}, overrides)
+        errors += schema_errors(schema["properties"][step], merged, prefix=(step,))
+    if errors:
+        listing = f"\n  {where}: ".join(errors)
+        raise SheetError(f"{where}: {listing}")
+
+
+# ================================================================================ workflow glue
+# Generated from the steps' settings dataclasses ('python -m seathru.settings schema'); read
+# as a file, so the Snakemake process needs no import of the package (conda deployment).
+CONFIG_SCHEMA = yaml.safe_load(
+    Path(workflow.source_path("../schemas/config.schema.yaml")).read_text())
+
+
+def load_sheet(path, config):
+    """The dataset sheet, indexed by dataset id, and each dataset's parsed options."""
     if not Path(path).is_file():
         raise SheetError(f"dataset sheet {path} not found (set 'datasets' in config/config.yaml)")
     sheet = pd.read_csv(path, sep="\t", dtype=str, keep_default_na=False, comment="#")
@@ -79,6 +267,7 @@ def load_sheet(path):
     if missing:
         raise SheetError(f"{path}: missing column {missing[0]!r}; the sheet needs the columns "
                          "dataset, source, path, options (tab-separated)")
+    options = {}
     for index, row in sheet.iterrows():
         where = f"{path} row {index + 2} (dataset {row['dataset']!r})"
         if row["source"] not in SOURCES:
@@ -89,50 +278,39 @@ def load_sheet(path):
         validate(pd.DataFrame([row]), schema="../schemas/datasets.schema.yaml")
         if row["source"] != "simulated" and not Path(row["path"]).exists():
             raise SheetError(f"{where}: field 'path': {row['path']!r} does not exist")
+        options[row["dataset"]] = parse_options(row["options"], where)
+        check_dataset_options(config, options[row["dataset"]], where, CONFIG_SCHEMA)
     duplicated = sheet["dataset"][sheet["dataset"].duplicated()].tolist()
     if duplicated:
         raise SheetError(f"{path}: dataset id {duplicated[0]!r} appears more than once")
-    return sheet.set_index("dataset", drop=False)
+    return sheet.set_index("dataset", drop=False), options
 
 
-for _step in STEPS:
-    _check_step_keys(f"config section '{_step}'", _step, config.get(_step) or {})
-SHEET = load_sheet(config["datasets"])
-OPTIONS = {ds: _parse_options(SHEET.loc[ds, "options"], f"{config['datasets']} dataset {ds!r}")
-           for ds in SHEET.index}
+config.update(read_text_values(config, CONFIG_SCHEMA))
+check_config(config, CONFIG_SCHEMA)
+RESULTS = config["results"]
+LOGS = config["logs"]
+SHEET, OPTIONS = load_sheet(config["datasets"], config)
 DATASETS = list(SHEET.index)
 
-
-wildcard_constraints:
-    dataset="|".join(map(re.escape, DATASETS)) if DATASETS else "NO_DATASET",
+# envs/seathru.post-deploy.sh installs the package from this checkout into the conda
+# environment Snakemake builds; it runs from a copy under .snakemake/conda/ in the working
+# directory, so it cannot find the checkout by its own location. Snakemake runs it from this
+# process, which hands it this variable (set here, so it is not an `envvars:` the user sets).
+if (Path(workflow.basedir).parent / "pyproject.toml").is_file():
+    os.environ.update(SEATHRU_SOURCE_DIR=str(Path(workflow.basedir).parent.resolve()))
 
 
 def step_options(dataset, step):
-    """The step's configuration for one dataset: config defaults updated by the sheet's options."""
-    merged = dict(config.get(step) or {})
-    merged.update(OPTIONS.get(dataset, {}).get(step, {}))
-    return merged
-
-
-def cli_flags(options):
-    """Render options as CLI flags: key_name -> --key-name VALUE, booleans as --key/--no-key."""
-    parts = []
-    for key, value in sorted(options.items()):
-        name = key.replace("_", "-")
-        if value is None:
-            continue
-        if isinstance(value, bool):
-            parts.append(f"--{name}" if value else f"--no-{name}")
-        elif isinstance(value, (list, tuple)):
-            parts.append(f"--{name} " + " ".join(shlex.quote(str(v)) for v in value))
-        else:
-            parts.append(f"--{name} {shlex.quote(str(value))}")
-    return " ".join(parts)
+    """The step's configuration for one dataset: the config section updated by the sheet's
+    options (nested sections merged key by key)."""
+    return deep_merge(config.get(step) or {}, OPTIONS.get(dataset, {}).get(step, {}))
 
 
 def flags(step):
     """A params function: the step's flags for the job's dataset (a change reruns the job)."""
-    return lambda wildcards: cli_flags(step_options(wildcards.dataset, step))
+    schema = CONFIG_SCHEMA["properties"][step]
+    return lambda wildcards: cli_flags(step_options(wildcards.dataset, step), schema)
 
 
 def resource(rule_name, key):
