@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from seathru.nerf.water_fit import fit_water, projected_loss, voxel_groups
+from seathru.nerf.water_fit import (fit_water, laplace_halfwidths, projected_loss, surface_data,
+                                     voxel_groups)
 
 TRUE = {"sigma_attn": [0.55, 0.25, 0.20], "sigma_bs": [0.45, 0.30, 0.25],
         "c_med": [0.08, 0.20, 0.30]}
@@ -50,3 +51,60 @@ def test_fit_recovers_the_water_from_surfaces_seen_over_a_range_of_distances(sta
     for key in ("sigma_attn", "sigma_bs", "c_med"):
         assert np.allclose(getattr(fit, key), TRUE[key], rtol=0.05), (key, getattr(fit, key))
     assert fit.pixels == len(ranges) and fit.groups == groups
+
+
+def _fit_and_spread(ranges, observed, ids, groups):
+    fit = fit_water(ranges, observed, ids, groups,
+                    {"sigma_attn": 0.3, "sigma_bs": 0.3, "c_med": 0.5})
+    return fit, laplace_halfwidths(fit, ranges, observed, ids, groups)
+
+
+def test_laplace_intervals_hold_the_truth_and_flag_what_the_views_cannot_tell():
+    covered = total = 0
+    for seed in range(8):
+        data = _observations(np.random.default_rng(seed), noise=1e-2)
+        fit, spread = _fit_and_spread(*data)
+        for key in ("sigma_attn", "sigma_bs", "c_med"):
+            for value, half, true in zip(getattr(fit, key), spread.halfwidth[key], TRUE[key]):
+                covered += abs(value - true) <= half
+                total += 1
+    assert covered / total >= 0.9, (covered, total)
+    # one narrow band of ranges: the backscatter cannot be told from brighter surfaces
+    narrow = _observations(np.random.default_rng(0), near=4.0, far=4.5, noise=1e-2)
+    _, spread = _fit_and_spread(*narrow)
+    assert not any(spread.determined["sigma_bs"])
+
+
+def test_open_water_pixels_pin_the_veiling_light():
+    rng = np.random.default_rng(3)
+    ranges, observed, ids, groups = _observations(rng, near=4.0, far=4.5, noise=1e-2)
+    _, without = _fit_and_spread(ranges, observed, ids, groups)
+    water = torch.tensor(TRUE["c_med"], dtype=torch.float64) \
+        + 1e-2 * torch.from_numpy(rng.standard_normal((500, 3)))
+    ranges = torch.cat([ranges, torch.full((500,), float("inf"), dtype=torch.float64)])
+    ids = torch.cat([ids, torch.full((500,), groups, dtype=ids.dtype)])
+    fit, with_water = _fit_and_spread(ranges, torch.cat([observed, water]), ids, groups + 1)
+    assert np.allclose(fit.c_med, TRUE["c_med"], rtol=0.05)
+    assert all(with_water.determined["c_med"])
+    assert all(np.isfinite(fit.sigma_attn + fit.sigma_bs))
+    for before, after in zip(without.halfwidth["c_med"], with_water.halfwidth["c_med"]):
+        assert after < before
+
+
+def test_surface_data_keeps_surfaces_seen_over_a_range_and_adds_open_water():
+    rng = np.random.default_rng(4)
+    count = 4000
+    origins = torch.zeros(count, 3, dtype=torch.float64)
+    origins[:, 0] = torch.from_numpy(rng.uniform(0, 5, count))
+    directions = torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64).expand(count, 3)
+    depth = torch.from_numpy(rng.uniform(1, 6, count))
+    opacity = torch.ones(count, dtype=torch.float64)
+    opacity[:300] = 0.01                                     # open water
+    rgb = torch.rand(count, 3, dtype=torch.float64)
+    data = surface_data(origins, directions, rgb, depth, opacity, voxel=100.0,
+                        min_pixels=10, open_water_opacity=0.1)
+    assert not isinstance(data, str)
+    assert int(torch.isinf(data.ranges).sum()) == 300
+    assert data.groups == int(data.ids.max()) + 1
+    too_few = surface_data(origins, directions, rgb, depth, opacity * 0.5, voxel=1.0)
+    assert isinstance(too_few, str) and "opaque" in too_few

@@ -15,6 +15,16 @@ read too)::
      # mode "view" only: the values above are means over training rays, and
      "note": "...", "normalised_min": {...}, "min": {...}, "normalised_max": {...}, "max": {...}}
 
+With a global medium, ``uncertainty`` says how well the views determine each number::
+
+     "uncertainty": {"method": "...", "interval95": {"sigma_attn": [[lo, hi] x 3], ...},
+                     "determined": {"sigma_attn": [bool x 3], ...},   # half-width <= 25%
+                     "surface_fit": {...},       # the water fit on the model's own surfaces
+                     "normalised": {"halfwidth95": {...}, "surface_fit": {...}},
+                     "pixels": int, "groups": int}
+
+(per-source units like the top level; ``hi`` is null where the views do not bound it).
+
 The ``normalised`` section (and, for view-dependent water, ``normalised_min`` / ``_max``) and
 ``scale`` are the data; every per-source-unit number is derived from them on writing.
 
@@ -24,6 +34,7 @@ The ``normalised`` section (and, for view-dependent water, ``normalised_min`` / 
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -40,6 +51,11 @@ UNITS = ("sigma_attn and sigma_bs: 1/(source unit) = normalised value * scale (m
 VIEW_NOTE = ("view-dependent water: values are the mean over training rays; min and max over "
              "the same rays")
 MODES = ("off", "global", "view")
+UNCERTAINTY_METHOD = (
+    "95% intervals around the trained value: Laplace approximation of the profile loss of a "
+    "water fit on the model's own surfaces (seathru.nerf.water_fit.laplace_halfwidths), one "
+    "sample per surface voxel and channel; a parameter whose half-width exceeds 25% of its "
+    "value is not determined by the views")
 
 
 @dataclass(frozen=True)
@@ -91,10 +107,12 @@ class WaterReport:
     normalised: WaterValues
     normalised_min: WaterValues | None = None
     normalised_max: WaterValues | None = None
+    uncertainty: Mapping[str, Any] | None = None
     format: str = WATER_FORMAT
 
     @classmethod
-    def from_parameters(cls, params: Mapping[str, Any], scale: float) -> WaterReport:
+    def from_parameters(cls, params: Mapping[str, Any], scale: float,
+                        assessment: Mapping[str, Any] | None = None) -> WaterReport:
         """From ``SeaThruModel.water_parameters(directions)``: ``mode``, ``sigma_attn``,
         ``sigma_bs``, ``c_med`` (lists of 3, normalised units) and, for ``view``, ``min`` and
         ``max`` dicts of the same keys.
@@ -109,8 +127,19 @@ class WaterReport:
         if params["mode"] == "view":
             bounds = {f"normalised_{b}": WaterValues.from_mapping(params[b], b)
                       for b in ("min", "max")}
+        uncertainty = None
+        if assessment and "halfwidth95" in assessment:
+            uncertainty = {"halfwidth95": {k: [float(v) for v in assessment["halfwidth95"][k]]
+                                           for k in WATER_KEYS},
+                           "determined": {k: [bool(v) for v in assessment["determined"][k]]
+                                          for k in WATER_KEYS},
+                           "surface_fit": {k: [float(v) for v in assessment["surface_fit"][k]]
+                                           for k in WATER_KEYS},
+                           "pixels": int(assessment["pixels"]),
+                           "groups": int(assessment["groups"])}
         return cls(mode=str(params["mode"]), scale=float(scale),
-                   normalised=WaterValues.from_mapping(params, "parameters"), **bounds)
+                   normalised=WaterValues.from_mapping(params, "parameters"), **bounds,
+                   uncertainty=uncertainty)
 
     @property
     def per_source_unit(self) -> WaterValues:
@@ -127,12 +156,41 @@ class WaterReport:
             "normalised": self.normalised.as_dict(),
             "per_source_unit": {k: v for k, v in source.as_dict().items() if k in SIGMA_KEYS},
         }
+        if self.uncertainty:
+            data["uncertainty"] = self._uncertainty_dict()
         if self.mode == "view" and self.normalised_min and self.normalised_max:
             data["note"] = VIEW_NOTE
             for bound, values in (("min", self.normalised_min), ("max", self.normalised_max)):
                 data[f"normalised_{bound}"] = values.as_dict()
                 data[bound] = values.scaled(self.scale).as_dict()
         return data
+
+    def _uncertainty_dict(self) -> dict[str, Any]:
+        u = self.uncertainty
+        factor = {"sigma_attn": self.scale, "sigma_bs": self.scale, "c_med": 1.0}
+        centre = self.normalised.as_dict()
+        interval, surface = {}, {}
+        for key in WATER_KEYS:
+            f = factor[key]
+            interval[key] = [[max(0.0, (c - h) * f), (c + h) * f] if math.isfinite(h)
+                             else [0.0, None] for c, h in zip(centre[key],
+                                                             u["halfwidth95"][key])]
+            surface[key] = [v * f for v in u["surface_fit"][key]]
+        return {"method": UNCERTAINTY_METHOD, "interval95": interval,
+                "determined": u["determined"], "surface_fit": surface,
+                "normalised": {"halfwidth95": {k: [v if math.isfinite(v) else None
+                                                   for v in u["halfwidth95"][k]]
+                                               for k in WATER_KEYS},
+                               "surface_fit": u["surface_fit"]},
+                "pixels": u["pixels"], "groups": u["groups"]}
+
+    @property
+    def undetermined(self) -> list[str]:
+        """``parameter[channel]`` names the images do not determine (empty if not assessed)."""
+        if not self.uncertainty:
+            return []
+        return [f"{key}[{'RGB'[i]}]" for key in WATER_KEYS
+                for i, ok in enumerate(self.uncertainty["determined"][key]) if not ok]
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "water.json") -> WaterReport:
@@ -152,10 +210,20 @@ class WaterReport:
             bounds = {f"normalised_{b}": WaterValues.from_mapping(data[f"normalised_{b}"],
                                                                   f"normalised_{b}")
                       for b in ("min", "max") if f"normalised_{b}" in data}
+            uncertainty = None
+            if isinstance(data.get("uncertainty"), Mapping):
+                u = data["uncertainty"]
+                uncertainty = {
+                    "halfwidth95": {k: [math.inf if v is None else float(v) for v in
+                                        u["normalised"]["halfwidth95"][k]] for k in WATER_KEYS},
+                    "determined": {k: [bool(v) for v in u["determined"][k]] for k in WATER_KEYS},
+                    "surface_fit": {k: [float(v) for v in u["normalised"]["surface_fit"][k]]
+                                    for k in WATER_KEYS},
+                    "pixels": int(u["pixels"]), "groups": int(u["groups"])}
             return cls(mode=mode, scale=float(scale),
                        normalised=WaterValues.from_mapping(data.get("normalised"), "normalised"),
-                       **bounds)
-        except ValueError as exc:
+                       **bounds, uncertainty=uncertainty)
+        except (ValueError, KeyError, TypeError) as exc:
             raise PipelineError(f"{source}: not a valid water file ({exc}); re-run the 'train' "
                                 "step") from None
 

@@ -89,11 +89,20 @@ class MediumConfig:
                                              "this (surfaces, not fog or open water)")
     refit_voxel: float = setting(0.005, help="refit: surface points are grouped in voxels of "
                                              "this share of the scene box diagonal")
+    open_water_opacity: float = setting(0.1, help="rays below this object opacity meet no "
+                                                  "surface: their pixel is the veiling light "
+                                                  "(0 = do not use open water)")
+    open_water_from: float = setting(0.3, help="progress from which refits use open-water rays "
+                                               "(earlier, unfinished surfaces are transparent "
+                                               "too)")
     refit_steps: int = setting(300, help="most L-BFGS iterations of a water refit")
     auto_select_at: float = setting(0.8, help="auto: progress at which the model is chosen")
     auto_trial_share: float = setting(0.05, help="auto: share of the run each trial trains")
     auto_margin_db: float = setting(0.5, help="auto: water must beat no water by this many dB "
                                               "on held-out rays")
+    auto_open_water_share: float = setting(0.05, help="auto: share of rays meeting no surface "
+                                                      "(or a wall at the far bound) that counts "
+                                                      "as open water in view")
     auto_backscatter_share: float = setting(0.01, help="auto: backscatter below this share of "
                                                        "the image is negligible")
     auto_attenuation: float = setting(0.02, help="auto: attenuation over the scene depth below "

@@ -33,16 +33,16 @@ from typing import Callable
 
 import torch
 
-from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruction_loss,
-                                 total_variation_3d,
-                                 transmittance_prior)
+from seathru.errors import PipelineError
 from seathru.nerf.config import TrainConfig, resolve_batch_rays
+from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruction_loss,
+                                 total_variation_3d, transmittance_prior)
 from seathru.nerf.model import SeaThruModel
 from seathru.nerf.rays import RayBatch, RayDataset
-from seathru.nerf.water_fit import fit_water, ranged_groups, voxel_groups
-from seathru.errors import PipelineError
+from seathru.nerf.water_fit import SurfaceData, fit_water, laplace_halfwidths, surface_data
 
 CHECKPOINT_FORMAT = "seathru-train-checkpoint/1"
+WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
 
 
 @dataclass
@@ -291,11 +291,14 @@ class Trainer:
         (backscatter below ``auto_backscatter_share`` of the image and attenuation over the
         median scene depth below ``auto_attenuation``) the water is switched off at once.
         Otherwise both models train on from here for the same few steps on the same batches
-        (``auto_trial_share`` of the run each) and are compared on held-out training rays: the
-        water stays only if it is better by ``auto_margin_db``; training continues from the
-        branch chosen. View-dependent water is never picked automatically: a direction-
-        dependent medium can also absorb errors of a half-trained scene (a far seabed not yet
-        reconstructed looks like direction-dependent water); ask for it with ``medium.mode=view``.
+        (``auto_trial_share`` of the run each) and are compared on held-out training rays.
+        The images' own evidence of water decides ties: open water in view (rays that meet no
+        surface, ``auto_open_water_share``), a density wall at the far bound standing in for
+        it, or attenuation the surfaces seen over a range of distances determine
+        (``assess_water``). With such evidence the water stays unless no water is better by
+        ``auto_margin_db``; without it, the water must be better by that margin. View-dependent
+        water is never picked automatically: a direction-dependent medium can also absorb
+        errors of a half-trained scene; ask for it with ``medium.mode=view``.
         """
         c = self.config
         rendered = self.render_batch(self.probe)
@@ -308,14 +311,35 @@ class Trainer:
         else:
             depth = float(self.model.scene.get("typical_range", 1.0))
         attenuation = 1.0 - math.exp(-max(water["sigma_attn"]) * depth)
+        open_water = float((rendered["opacity"] < 0.1).float().mean())
+        far = self.probe.far.to(rendered["depth_median"].device)
+        wall = float(((rendered["opacity"] > 0.5) & (rendered["depth_median"] > 0.95 * far))
+                     .float().mean())
+        assessment = self.assess_water() or {}
+        determined = all(assessment.get("determined", {}).get("sigma_attn", [False]))
+        surface_attenuation = 1.0 - math.exp(-max(assessment.get("surface_fit", {}).get(
+            "sigma_attn", [0.0])) * depth)
+        evidence = [text for present, text in (
+            (open_water > c.medium.auto_open_water_share,
+             f"{100 * open_water:.1f}% of the rays meet no surface (open water)"),
+            (wall > c.medium.auto_open_water_share,
+             f"{100 * wall:.1f}% of the rays end in a density wall at the far bound"),
+            (determined and surface_attenuation > 2 * c.medium.auto_attenuation,
+             f"surfaces seen over a range of distances fade by {100 * surface_attenuation:.0f}% "
+             f"over the median depth (attenuation determined)")) if present]
         stats = {"backscatter_share": backscatter_share, "attenuation_over_depth": attenuation,
                  "scene_depth_median": depth, "object_hit_share": float(hit.float().mean()),
+                 "open_water_share": open_water, "far_wall_share": wall,
+                 "surface_attenuation_over_depth": surface_attenuation,
+                 "attenuation_determined": determined, "evidence_of_water": evidence,
                  "fitted_global": water, "validation_rays": len(self.probe)}
         thresholds = {"backscatter_share": c.medium.auto_backscatter_share,
                       "attenuation_over_depth": c.medium.auto_attenuation,
+                      "open_water_share": c.medium.auto_open_water_share,
                       "margin_db": c.medium.auto_margin_db}
         decided_at = {"decided_at_step": self.step, "decided_at_progress": self._progress()}
-        if backscatter_share < c.medium.auto_backscatter_share and attenuation < c.medium.auto_attenuation:
+        if not evidence and backscatter_share < c.medium.auto_backscatter_share \
+                and attenuation < c.medium.auto_attenuation:
             chosen = "off"
             reason = (f"fitted water is negligible: backscatter is {100 * backscatter_share:.2f}% "
                       f"of the image (< {100 * c.medium.auto_backscatter_share:g}%) and attenuation "
@@ -341,17 +365,25 @@ class Trainer:
                         self.step += 1
                 results[mode] = self._probe_psnr()
             gain = results["global"] - results["off"]
-            chosen = "global" if gain > c.medium.auto_margin_db else "off"
+            margin = c.medium.auto_margin_db
+            chosen = "global" if (gain > -margin if evidence else gain > margin) else "off"
             if chosen == "off":
                 self._restore(ends["off"])
                 self.model.medium.set_mode("off")
             stats.update({"trial_steps": trial, "validation_psnr_off": results["off"],
                           "validation_psnr_global": results["global"]})
-            verdict = (f"better by {gain:.2f} dB > {c.medium.auto_margin_db:g} dB: one global medium "
-                       "(view-dependent water is only used when asked for with medium.mode=view)"
-                       if chosen == "global" else
-                       f"not better by more than {c.medium.auto_margin_db:g} dB ({gain:+.2f} dB): "
-                       "no water, plain NeRF")
+            if evidence:
+                verdict = (f"kept: the images show water ({'; '.join(evidence)}) and no water "
+                           f"is not better by more than {margin:g} dB ({gain:+.2f} dB for the "
+                           "water)" if chosen == "global" else
+                           f"dropped despite signs of water ({'; '.join(evidence)}): no water "
+                           f"is better by {-gain:.2f} dB > {margin:g} dB")
+            else:
+                verdict = (f"better by {gain:.2f} dB > {margin:g} dB: one global medium"
+                           if chosen == "global" else
+                           f"not better by more than {margin:g} dB ({gain:+.2f} dB) and the "
+                           "images show no open water, far wall or fading with range: no "
+                           "water, plain NeRF")
             reason = (f"trained {trial} steps with and without water from step "
                       f"{start['step']}: on {len(self.probe)} held-out training rays the water "
                       f"model reaches {results['global']:.2f} dB, no water "
@@ -366,6 +398,18 @@ class Trainer:
 
     # -------------------------------------------------------------------- loop
     @torch.no_grad()
+    def _surface_data(self, seed: int) -> SurfaceData | str:
+        c, model = self.config, self.model
+        rays = self.data.fixed_subset(c.medium.refit_rays, seed)
+        rendered = self.render_batch(rays)
+        diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
+        open_water = c.medium.open_water_opacity \
+            if self._progress() >= c.medium.open_water_from else 0.0
+        return surface_data(rays.origins, rays.directions, rays.rgb, rendered["depth_median"],
+                            rendered["opacity"], c.medium.refit_voxel * diagonal,
+                            c.medium.refit_opacity, open_water_opacity=open_water)
+
+    @torch.no_grad()
     def refit_water(self) -> dict:
         """Refit the global water to the training images on the model's own geometry.
 
@@ -375,42 +419,48 @@ class Trainer:
         down (``seathru.nerf.water_fit``). The fitted values replace the medium's and its
         optimiser state is reset. Returns a record of what was done (for selection.json).
         """
-        c, model = self.config, self.model
+        model = self.model
         record = {"step": self.step, "progress": round(self._progress(), 4)}
         if model.medium.mode != "global":
             return {**record, "skipped": f"medium mode is {model.medium.mode}"}
         started = time.perf_counter()
-        rays = self.data.fixed_subset(c.medium.refit_rays, c.seed + 5 + len(self.water_refits))
-        rendered = self.render_batch(rays)
-        depth = rendered["depth_median"]
-        keep = (rendered["opacity"] > c.medium.refit_opacity) & torch.isfinite(depth)
-        if int(keep.sum()) < 1000:
-            return {**record, "skipped": f"only {int(keep.sum())} rays reach opaque surfaces"}
-        points = rays.origins[keep] + rays.directions[keep] * depth[keep, None]
-        diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
-        ranges, observed = depth[keep].double().cpu(), rays.rgb[keep].double().cpu()
-        ids, groups = voxel_groups(points.double().cpu(), c.medium.refit_voxel * diagonal)
-        ranged = ranged_groups(ranges, ids, groups)
-        if int(ranged.sum()) < 1000:
-            return {**record, "skipped": f"only {int(ranged.sum())} surface pixels are seen "
-                                         "over a spread of ranges"}
-        ids, groups = voxel_groups(points.double().cpu()[ranged],
-                                   c.medium.refit_voxel * diagonal)
+        data = self._surface_data(self.config.seed + 5 + len(self.water_refits))
+        if isinstance(data, str):
+            return {**record, "skipped": data}
         before = model.water_parameters()
-        fit = fit_water(ranges[ranged], observed[ranged], ids, groups, before,
-                        c.medium.refit_steps, model.medium.colour_max)
+        fit = fit_water(data.ranges, data.observed, data.ids, data.groups, before,
+                        self.config.medium.refit_steps, model.medium.colour_max)
         model.medium.set_global(fit.sigma_attn, fit.sigma_bs, fit.c_med)
         for param in model.medium.global_parameters():
             self.optimizer.state.pop(param, None)
-        record.update({"pixels": fit.pixels, "groups": groups, "seconds":
+        record.update({"pixels": fit.pixels, "groups": fit.groups, "seconds":
                        round(time.perf_counter() - started, 2),
-                       "before": {k: before[k] for k in ("sigma_attn", "sigma_bs", "c_med")},
-                       "after": {"sigma_attn": fit.sigma_attn, "sigma_bs": fit.sigma_bs,
-                                 "c_med": fit.c_med}})
+                       "before": {k: before[k] for k in WATER_KEYS},
+                       "after": {k: getattr(fit, k) for k in WATER_KEYS}})
         self._say(f"step {self.step}: water refitted on {fit.pixels} surface pixels: "
                   f"sigma_attn {_fmt(before['sigma_attn'])} -> {_fmt(fit.sigma_attn)}, "
                   f"sigma_bs {_fmt(before['sigma_bs'])} -> {_fmt(fit.sigma_bs)} (normalised)")
         return record
+
+    @torch.no_grad()
+    def assess_water(self) -> dict | None:
+        """How well the images determine the trained water: a fit on the final geometry's
+        surfaces and its Laplace half-widths (``water_fit.laplace_halfwidths``), normalised
+        units. None when the medium is not global or there are too few surface pixels."""
+        model = self.model
+        if model.medium.mode != "global":
+            return None
+        data = self._surface_data(self.config.seed + 97)
+        if isinstance(data, str):
+            return {"skipped": data}
+        fit = fit_water(data.ranges, data.observed, data.ids, data.groups,
+                        model.water_parameters(), self.config.medium.refit_steps,
+                        model.medium.colour_max)
+        spread = laplace_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups)
+        return {"surface_fit": {k: getattr(fit, k) for k in WATER_KEYS},
+                "halfwidth95": spread.halfwidth, "determined": spread.determined,
+                "pixels": fit.pixels, "groups": fit.groups,
+                "effective_samples": spread.effective_samples}
 
     def _progress(self) -> float:
         c = self.config

@@ -32,6 +32,56 @@ class WaterFit:
     groups: int
 
 
+@dataclass
+class SurfaceData:
+    """Pixels of surfaces seen over a spread of ranges, grouped by voxel (float64, CPU)."""
+
+    ranges: Tensor      # (N,)
+    observed: Tensor    # (N, 3)
+    ids: Tensor         # (N,) voxel group
+    groups: int
+
+
+def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor,
+                 opacity: Tensor, voxel: float, min_opacity: float = 0.9,
+                 min_pixels: int = 1000, open_water_opacity: float = 0.0) -> SurfaceData | str:
+    """The pixels a water fit can use, from rays rendered by the model.
+
+    Args:
+        origins, directions: (R, 3) rays; rgb: (R, 3) their pixels.
+        depth: (R,) the model's median depth; opacity: (R,) its object opacity.
+        voxel: side of the grouping voxels (scene units).
+        min_opacity: rays below are fog, open water or unconverged, not surfaces.
+        min_pixels: fewest usable pixels.
+        open_water_opacity: rays whose opacity is below this meet no surface: their pixel is
+            the veiling light ``c_med`` itself (range inf, one group of their own), which pins
+            ``c_med`` and with it the backscatter. 0 leaves them out (use it only once the
+            geometry has converged: an unfinished surface is transparent too).
+
+    Returns:
+        the data, or a sentence saying why there is not enough of it.
+    """
+    keep = (opacity > min_opacity) & torch.isfinite(depth)
+    if int(keep.sum()) < min_pixels:
+        return f"only {int(keep.sum())} rays reach opaque surfaces"
+    points = (origins[keep] + directions[keep] * depth[keep, None]).double().cpu()
+    ranges, observed = depth[keep].double().cpu(), rgb[keep].double().cpu()
+    ids, groups = voxel_groups(points, voxel)
+    ranged = ranged_groups(ranges, ids, groups)
+    if int(ranged.sum()) < min_pixels:
+        return f"only {int(ranged.sum())} surface pixels are seen over a spread of ranges"
+    ids, groups = voxel_groups(points[ranged], voxel)
+    ranges, observed = ranges[ranged], observed[ranged]
+    water = opacity < open_water_opacity
+    if bool(water.any()):
+        ranges = torch.cat([ranges, torch.full((int(water.sum()),), math.inf,
+                                               dtype=ranges.dtype)])
+        observed = torch.cat([observed, rgb[water].double().cpu()])
+        ids = torch.cat([ids, torch.full((int(water.sum()),), groups, dtype=ids.dtype)])
+        groups += 1
+    return SurfaceData(ranges, observed, ids, groups)
+
+
 def voxel_groups(points: Tensor, voxel: float) -> tuple[Tensor, int]:
     """Group ids of points by the voxel of side ``voxel`` they fall in.
 
@@ -84,6 +134,8 @@ def projected_loss(sigma_attn: Tensor, sigma_bs: Tensor, c_med: Tensor, ranges: 
     Returns:
         the scalar loss (differentiable in the water parameters).
     """
+    # open water (range inf) as a very long finite range: same values, finite gradients
+    ranges = ranges.clamp_max(1e6)
     attenuation = torch.exp(-sigma_attn * ranges[:, None])
     backscatter = c_med * (1.0 - torch.exp(-sigma_bs * ranges[:, None]))
     num = observed.new_zeros(groups, 3).index_add_(0, ids, attenuation * (observed - backscatter))
@@ -147,3 +199,61 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
         attn, bs, c_med = water()
         loss = float(projected_loss(attn, bs, c_med, ranges, observed, ids, groups))
     return WaterFit(attn.tolist(), bs.tolist(), c_med.tolist(), loss, int(len(ranges)), groups)
+
+
+@dataclass
+class WaterUncertainty:
+    halfwidth: dict[str, list[float]]   # 95% half-width per parameter and channel (inf: none)
+    determined: dict[str, list[bool]]   # half-width below ``max_relative`` of the value
+    effective_samples: int
+
+
+def laplace_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tensor,
+                       groups: int, max_relative: float = 0.25) -> WaterUncertainty:
+    """95% intervals of the fitted water from the curvature of the profile loss (Laplace).
+
+    The loss of :func:`projected_loss` is already minimised over every clean colour, so its
+    Hessian in the 9 water parameters is that of the profile likelihood: flat directions (water
+    traded against brighter surfaces) give wide intervals. Residuals are treated as Gaussian
+    with the fit's own variance, but pixels of one surface voxel share the model's errors, so
+    the sample count is the number of voxels times 3 channels, not of pixels: intervals from
+    pixel counts would be far too narrow for a NeRF's geometry errors. A parameter whose
+    half-width exceeds ``max_relative`` of its value is flagged as not determined.
+
+    Args:
+        fit: the result of :func:`fit_water` on the same data.
+        ranges, observed, ids, groups: the data of that fit.
+        max_relative: relative half-width above which a parameter counts as undetermined.
+
+    Returns:
+        half-widths and flags per parameter (``sigma_attn``, ``sigma_bs``, ``c_med``) and channel.
+    """
+    theta = torch.tensor(fit.sigma_attn + fit.sigma_bs + fit.c_med, dtype=torch.float64)
+    ranges, observed = ranges.double(), observed.double()
+
+    def loss(params: Tensor) -> Tensor:
+        return projected_loss(params[0:3], params[3:6], params[6:9], ranges, observed, ids,
+                              groups)
+
+    with torch.enable_grad():
+        hessian = torch.autograd.functional.hessian(loss, theta)
+    samples = max(1, 3 * groups)
+    variance = max(fit.loss, 1e-12)
+    # information of the mean-squared loss: n / (2 sigma^2) * H, with sigma^2 = the loss
+    information = samples / (2.0 * variance) * hessian
+    eigenvalues, vectors = torch.linalg.eigh(0.5 * (information + information.T))
+    floor = float(eigenvalues.abs().max()) * 1e-12 + 1e-300
+    inverse = torch.where(eigenvalues > floor, 1.0 / eigenvalues.clamp_min(floor),
+                          torch.full_like(eigenvalues, float("inf")))
+    # a direction the data do not curve gets infinite variance in every parameter it touches
+    variance_diag = ((vectors ** 2) * inverse).sum(-1)
+    variance_diag = torch.where(torch.isnan(variance_diag), torch.full_like(variance_diag,
+                                float("inf")), variance_diag)
+    half = (1.96 * variance_diag.sqrt()).tolist()
+    values = fit.sigma_attn + fit.sigma_bs + fit.c_med
+    names = ("sigma_attn", "sigma_bs", "c_med")
+    halfwidth = {n: half[3 * i:3 * i + 3] for i, n in enumerate(names)}
+    determined = {n: [bool(h <= max_relative * abs(v)) for h, v in
+                      zip(half[3 * i:3 * i + 3], values[3 * i:3 * i + 3])]
+                  for i, n in enumerate(names)}
+    return WaterUncertainty(halfwidth, determined, samples)

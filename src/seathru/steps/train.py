@@ -127,8 +127,12 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
                           "threads": torch.get_num_threads()}
     save_model(out / "model.pt", export)
     directions = data.fixed_subset(8192, config.seed + 4).directions
-    write_water(out / "water.json", WaterReport.from_parameters(
-        model.water_parameters(directions), float(cameras.scale)))
+    report = WaterReport.from_parameters(model.water_parameters(directions),
+                                         float(cameras.scale), trainer.assess_water())
+    write_water(out / "water.json", report)
+    if report.undetermined:
+        log.warning("the views do not determine %s (95%% interval wider than +-25%%): the "
+                    "restored images rest on them", ", ".join(report.undetermined))
     write_log_csv(out / "train_log.csv", result.log)
     write_json(out / "selection.json", {**result.selection, "final_mode": model.medium.mode,
                                          "water_refits": trainer.water_refits})
