@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from seathru.nerf.water_fit import (fit_water, laplace_halfwidths, projected_loss, surface_data,
+from seathru.nerf.water_fit import (dark_pixels, fit_water, laplace_halfwidths, projected_loss,
+                                     surface_data,
                                      voxel_groups)
 
 TRUE = {"sigma_attn": [0.55, 0.25, 0.20], "sigma_bs": [0.45, 0.30, 0.25],
@@ -108,3 +109,25 @@ def test_surface_data_keeps_surfaces_seen_over_a_range_and_adds_open_water():
     assert data.groups == int(data.ids.max()) + 1
     too_few = surface_data(origins, directions, rgb, depth, opacity * 0.5, voxel=1.0)
     assert isinstance(too_few, str) and "opaque" in too_few
+
+
+def test_dark_pixels_follow_the_backscatter_where_some_surfaces_are_black():
+    rng = np.random.default_rng(5)
+    ranges, observed, ids, groups = _observations(rng, groups=2000, per_group=4)
+    clean_black = rng.random(groups) < 0.1          # one surface in ten is black
+    attn, bs, c_med = (np.array(TRUE[k]) for k in ("sigma_attn", "sigma_bs", "c_med"))
+    z = ranges.numpy()
+    backscatter = c_med * (1 - np.exp(-bs * z[:, None]))
+    observed = torch.from_numpy(np.where(clean_black[ids.numpy(), None], backscatter,
+                                         observed.numpy()))
+    centres, values = dark_pixels(ranges, observed, bins=8)
+    expected = c_med * (1 - np.exp(-bs * centres.numpy()[:, None]))
+    assert np.all(values.numpy() >= expected - 1e-3)       # an upper bound on B(z) ...
+    assert np.all(values.numpy() - expected < 0.05)        # ... and a tight one
+    # a bound the fit must respect: with the bound the fitted backscatter stays below it
+    narrow = _observations(np.random.default_rng(6), near=4.0, far=4.5, noise=1e-2)
+    bound = (torch.tensor([4.25], dtype=torch.float64),
+             torch.tensor([[0.01, 0.01, 0.01]], dtype=torch.float64))
+    fit = fit_water(*narrow, {"sigma_attn": 0.3, "sigma_bs": 0.3, "c_med": 0.5}, dark=bound)
+    modelled = np.array(fit.c_med) * (1 - np.exp(-np.array(fit.sigma_bs) * 4.25))
+    assert np.all(modelled < 0.02), modelled

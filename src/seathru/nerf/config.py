@@ -95,6 +95,9 @@ class MediumConfig:
     open_water_from: float = setting(0.3, help="progress from which refits use open-water rays "
                                                "(earlier, unfinished surfaces are transparent "
                                                "too)")
+    dark_pixel_bound: bool = setting(True, help="refits keep the backscatter below the darkest "
+                                                "pixels at each range (Sea-thru's dark-pixel "
+                                                "estimate)")
     refit_steps: int = setting(300, help="most L-BFGS iterations of a water refit")
     auto_select_at: float = setting(0.8, help="auto: progress at which the model is chosen")
     auto_trial_share: float = setting(0.05, help="auto: share of the run each trial trains")

@@ -429,7 +429,8 @@ class Trainer:
             return {**record, "skipped": data}
         before = model.water_parameters()
         fit = fit_water(data.ranges, data.observed, data.ids, data.groups, before,
-                        self.config.medium.refit_steps, model.medium.colour_max)
+                        self.config.medium.refit_steps, model.medium.colour_max,
+                        data.dark if self.config.medium.dark_pixel_bound else None)
         model.medium.set_global(fit.sigma_attn, fit.sigma_bs, fit.c_med)
         for param in model.medium.global_parameters():
             self.optimizer.state.pop(param, None)
@@ -455,7 +456,8 @@ class Trainer:
             return {"skipped": data}
         fit = fit_water(data.ranges, data.observed, data.ids, data.groups,
                         model.water_parameters(), self.config.medium.refit_steps,
-                        model.medium.colour_max)
+                        model.medium.colour_max,
+                        data.dark if self.config.medium.dark_pixel_bound else None)
         spread = laplace_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups)
         return {"surface_fit": {k: getattr(fit, k) for k in WATER_KEYS},
                 "halfwidth95": spread.halfwidth, "determined": spread.determined,

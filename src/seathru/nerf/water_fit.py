@@ -40,6 +40,7 @@ class SurfaceData:
     observed: Tensor    # (N, 3)
     ids: Tensor         # (N,) voxel group
     groups: int
+    dark: tuple[Tensor, Tensor] | None = None  # (K,) range bins, (K, 3) darkest pixel values
 
 
 def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor,
@@ -70,6 +71,7 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
     ranged = ranged_groups(ranges, ids, groups)
     if int(ranged.sum()) < min_pixels:
         return f"only {int(ranged.sum())} surface pixels are seen over a spread of ranges"
+    dark = dark_pixels(ranges, observed)
     ids, groups = voxel_groups(points[ranged], voxel)
     ranges, observed = ranges[ranged], observed[ranged]
     water = opacity < open_water_opacity
@@ -79,7 +81,36 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
         observed = torch.cat([observed, rgb[water].double().cpu()])
         ids = torch.cat([ids, torch.full((int(water.sum()),), groups, dtype=ids.dtype)])
         groups += 1
-    return SurfaceData(ranges, observed, ids, groups)
+    return SurfaceData(ranges, observed, ids, groups, dark)
+
+
+def dark_pixels(ranges: Tensor, observed: Tensor, bins: int = 10, quantile: float = 0.01,
+                min_per_bin: int = 50) -> tuple[Tensor, Tensor] | None:
+    """Sea-thru's dark-pixel estimate: the darkest pixels at each range bound the backscatter.
+
+    A pixel is ``J exp(-a z) + B(z)`` with ``J >= 0`` and ``B`` grows with range, so the
+    darkest pixels of a range bin are at least the backscatter at the bin's nearest range: the
+    ``quantile`` of each channel per bin bounds ``B`` there from above (nearly equal to it
+    where some surfaces are black or shadowed).
+
+    Args:
+        ranges: (N,) finite ranges; observed: (N, 3) pixels.
+        bins: range bins (equal counts); quantile: the darkness quantile per bin and channel.
+        min_per_bin: fewest pixels for a bin to count.
+
+    Returns:
+        (K,) nearest range of each bin and (K, 3) its dark values, or None with too few pixels.
+    """
+    finite = torch.isfinite(ranges)
+    ranges, observed = ranges[finite], observed[finite]
+    if len(ranges) < bins * min_per_bin:
+        return None
+    order = torch.argsort(ranges)
+    centres, values = [], []
+    for part in torch.tensor_split(order, bins):
+        centres.append(ranges[part].min())
+        values.append(torch.quantile(observed[part], quantile, dim=0))
+    return torch.stack(centres), torch.stack(values)
 
 
 def voxel_groups(points: Tensor, voxel: float) -> tuple[Tensor, int]:
@@ -149,8 +180,16 @@ def _inverse_softplus(value: float) -> float:
     return value + math.log(-math.expm1(-value)) if value < 20 else value
 
 
+def dark_excess(sigma_bs: Tensor, c_med: Tensor, dark: tuple[Tensor, Tensor]) -> Tensor:
+    """Mean squared excess of the modelled backscatter over the dark-pixel bound (0 if below)."""
+    centres, values = dark
+    backscatter = c_med * (1.0 - torch.exp(-sigma_bs * centres[:, None]))
+    return (torch.relu(backscatter - values) ** 2).mean()
+
+
 def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start: dict,
-              steps: int = 300, colour_max: float = 1.5) -> WaterFit:
+              steps: int = 300, colour_max: float = 1.5,
+              dark: tuple[Tensor, Tensor] | None = None, dark_weight: float = 10.0) -> WaterFit:
     """Fit the 9 water parameters by L-BFGS on :func:`projected_loss`, in float64.
 
     Nine smooth parameters and a cheap exact loss: a quasi-Newton method with a line search
@@ -162,6 +201,8 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
         start: ``{"sigma_attn": [3] or float, "sigma_bs": ..., "c_med": ...}`` start values.
         steps: most loss evaluations of the optimiser.
         colour_max: ``c_med`` is kept in (0, colour_max).
+        dark: optional dark-pixel bound (:func:`dark_pixels`): backscatter above it is
+            penalised with ``dark_weight`` times its mean squared excess.
 
     Returns:
         the fitted water and its loss.
@@ -187,9 +228,15 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
     def water() -> tuple[Tensor, Tensor, Tensor]:
         return F.softplus(raw[0:3]), F.softplus(raw[3:6]), torch.sigmoid(raw[6:9]) * colour_max
 
+    if dark is not None:
+        dark = (dark[0].double().to(ranges.device), dark[1].double().to(ranges.device))
+
     def closure() -> Tensor:
         optimiser.zero_grad()
-        loss = projected_loss(*water(), ranges, observed, ids, groups)
+        attn, bs, c_med = water()
+        loss = projected_loss(attn, bs, c_med, ranges, observed, ids, groups)
+        if dark is not None:
+            loss = loss + dark_weight * dark_excess(bs, c_med, dark)
         loss.backward()
         return loss
 
