@@ -28,6 +28,7 @@ from seathru.nerf.training import TrainCallbacks, Trainer
 from seathru.errors import PipelineError
 from seathru.io.cameras import read_cameras
 from seathru.io.images import read_image
+from seathru.io.training import read_snapshots
 from tests.conftest import REPO_ROOT
 
 torch.set_num_threads(1)
@@ -73,7 +74,7 @@ def _read_log(path: Path) -> list[dict]:
 @pytest.mark.slow
 def test_training_learns_the_scene_and_the_water(default_scene, tmp_path):
     _train_cli(default_scene / "cameras.json", tmp_path, "--steps", "700", "--batch-rays",
-               "512", "--log-every", "100")
+               "512", "--log-every", "100", "--quality-snapshot-first-s", "0.5")
     out = tmp_path / "train"
     for name in ("model.pt", "water.json", "train_log.csv", "selection.json"):
         assert (out / name).is_file(), name
@@ -92,6 +93,13 @@ def test_training_learns_the_scene_and_the_water(default_scene, tmp_path):
     assert tested[-1] > baseline + 3.0, (tested[-1], baseline)
     assert tested[-1] > tested[0] + 3.0
 
+    snapshots = read_snapshots(out)
+    assert len(snapshots) >= 2 and snapshots[-1]["step"] == 700
+    assert snapshots[-1]["test_psnr_images"] > snapshots[0]["test_psnr_images"]
+    assert [r["elapsed_s"] for r in snapshots] == sorted(r["elapsed_s"] for r in snapshots)
+    last = np.load(out / "snapshots" / "step_0000700.npz")
+    view = read_cameras(default_scene / "cameras.json").split("test")[0].name
+    assert last[f"{view}.restored"].shape == last[f"{view}.rgb"].shape
     checkpoint = torch.load(out / "model.pt", weights_only=True)
     assert checkpoint["format"] == "seathru-model/2"
     model = SeaThruModel.from_checkpoint(checkpoint)

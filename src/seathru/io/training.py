@@ -116,3 +116,55 @@ def load_checkpoint(path: Path, identity: dict, scene: dict, device) -> tuple[di
     if json.dumps(ckpt.get("scene"), sort_keys=True) != json.dumps(scene, sort_keys=True):
         return None, "the camera file (scene box or normalisation) changed"
     return ckpt, ""
+
+
+SNAPSHOT_COLUMNS = ("step", "elapsed_s", "test_psnr_images", "medium",
+                    *(f"{key}_{c}" for key in ("sigma_attn", "sigma_bs", "c_med") for c in "rgb"))
+
+
+def write_snapshots(out: Path, rows: list[dict], renders: dict[int, dict[str, np.ndarray]],
+                    downscale: int) -> None:
+    """``snapshots.csv`` (one row per quality snapshot; water in normalised units) and
+    ``snapshots/step_NNNNNNN.npz`` (held-out renders at ``downscale``: ``<view>.rgb`` and
+    ``<view>.restored``, float16), written atomically."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow([*SNAPSHOT_COLUMNS, "downscale"])
+    for row in rows:
+        cells = []
+        for key in SNAPSHOT_COLUMNS:
+            value = row.get(key)
+            cells.append("" if value is None else f"{value:.6g}" if isinstance(value, float)
+                         else str(value))
+        writer.writerow([*cells, downscale])
+    write_text(Path(out) / "snapshots.csv", buffer.getvalue())
+    folder = Path(out) / "snapshots"
+    folder.mkdir(parents=True, exist_ok=True)
+    for step, arrays in renders.items():
+        with atomic_path(folder / f"step_{step:07d}.npz") as tmp:
+            with open(tmp, "wb") as handle:
+                np.savez_compressed(handle, **arrays)
+
+
+def read_snapshots(out: Path) -> list[dict]:
+    """The rows of ``snapshots.csv`` (numbers as floats, empty cells as None); [] if absent."""
+    path = Path(out) / "snapshots.csv"
+    if not path.is_file():
+        return []
+    rows = []
+    with open(path, newline="") as handle:
+        for raw in csv.DictReader(handle):
+            row = {}
+            for key, value in raw.items():
+                if value == "" or value is None:
+                    row[key] = None
+                elif key == "medium":
+                    row[key] = value
+                else:
+                    try:
+                        row[key] = float(value)
+                    except ValueError:
+                        raise PipelineError(f"{path}: column {key!r} holds {value!r}, not a "
+                                            "number; re-run the 'train' step") from None
+            rows.append(row)
+    return rows

@@ -139,7 +139,8 @@ class OptimConfig:
 
 # Settings that do not change the model being trained: a resumed run may change them.
 RUNTIME_KEYS = ("max_minutes", "log_every", "checkpoint_every", "eval_rays", "snapshot_every",
-                "nan_max_retries", "device", "progress")
+                "nan_max_retries", "device", "progress", "quality_snapshot_first_s",
+                "quality_snapshot_downscale")
 
 
 @dataclass
@@ -163,6 +164,12 @@ class TrainConfig:
     log_every: int = setting(50, help="steps between train_log rows")
     checkpoint_every: int = setting(500, help="steps between checkpoints (0 = only at the end)")
     snapshot_every: int = setting(50, help="steps between in-memory snapshots (NaN rollback)")
+    quality_snapshot_first_s: float = setting(
+        5.0, help="the model is measured on whole held-out images after this many seconds of "
+                  "training, then at twice the time each time, and at the end (quality against "
+                  "time: train/snapshots.csv); 0 = never")
+    quality_snapshot_downscale: int = setting(4, help="held-out images are measured at this "
+                                                      "downscale in the snapshots")
     nan_max_retries: int = setting(5, help="rollbacks after NaN/Inf before giving up")
     progress: bool = setting(True, help="show a progress bar")
 

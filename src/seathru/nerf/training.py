@@ -54,6 +54,8 @@ class TrainCallbacks:
     checkpoint: Callable[[dict], None] | None = None        # a checkpoint dict to store
     message: Callable[[str], None] | None = None            # human-readable events
     batch_hook: Callable[[int, RayBatch], RayBatch] | None = None  # tests: alter a batch
+    # at log-spaced training times and at the end: (step, elapsed_s); its time is not counted
+    quality_snapshot: Callable[[int, float], None] | None = None
 
 
 @dataclass
@@ -511,6 +513,9 @@ class Trainer:
         model.refresh_occupancy()
         self._take_snapshot()
         last_test = None
+        next_quality = c.quality_snapshot_first_s
+        while 0 < next_quality <= self.elapsed_s:
+            next_quality *= 2.0
         while self.step < c.steps:
             self.elapsed_s = base_elapsed + (time.perf_counter() - run_start - self._eval_seconds)
             if self.elapsed_s >= budget:
@@ -572,6 +577,10 @@ class Trainer:
                 acc_n = 0
             if c.checkpoint_every and self.step % c.checkpoint_every == 0 and not final:
                 self._checkpoint()
+            if 0 < next_quality <= self.elapsed_s and not final:
+                self._quality_snapshot()
+                while next_quality <= self.elapsed_s:
+                    next_quality *= 2.0
 
         self.elapsed_s = base_elapsed + (time.perf_counter() - run_start - self._eval_seconds)
         if self.selection is None:  # stopped before the decision point: decide now
@@ -586,6 +595,8 @@ class Trainer:
                 self.log[-1]["test_psnr"] = test
             else:
                 self._append_log(float("nan"), float("nan"), test)
+        if c.quality_snapshot_first_s > 0:
+            self._quality_snapshot()
         self._checkpoint()
         run_time = time.perf_counter() - run_start
         run_steps = self.step - base_step
@@ -594,6 +605,14 @@ class Trainer:
                            final_test_psnr=last_test,
                            train_step_rate=run_steps / max(run_time, 1e-9),
                            rays_per_second=run_steps * c.batch_rays / max(run_time, 1e-9))
+
+    def _quality_snapshot(self) -> None:
+        """Let the step measure the model on whole held-out images; not training time."""
+        if self.callbacks.quality_snapshot is None:
+            return
+        start = time.perf_counter()
+        self.callbacks.quality_snapshot(self.step, self.elapsed_s)
+        self._eval_seconds = getattr(self, "_eval_seconds", 0.0) + time.perf_counter() - start
 
     def _optimise_once(self) -> tuple[torch.Tensor, torch.Tensor] | None:
         """One Adam step on a fresh batch; None if the NaN guard rolled back instead."""

@@ -59,10 +59,12 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
 
     from seathru.io.model import save_model
     from seathru.io.training import (CHECKPOINT_NAME, load_checkpoint, read_frame_images,
-                                     save_checkpoint, write_log_csv)
+                                     read_snapshots, save_checkpoint, write_log_csv,
+                                     write_snapshots)
     from seathru.io.water import WaterReport, write_water
     from seathru.nerf.device import select_device
     from seathru.nerf.prepare import prepare_run, seed_everything
+    from seathru.nerf.snapshots import QualitySnapshots
     from seathru.nerf.training import TrainCallbacks, Trainer
 
     device = select_device(config.device, threads)
@@ -74,9 +76,13 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     if not test_frames:
         log.warning("%s: no test frames; the log has no held-out PSNR", cameras_path)
     started = time.perf_counter()
+    test_images, test_masks = read_frame_images(cameras, test_frames)
+    snapshots = QualitySnapshots.from_full_images(test_frames, test_images,
+                                                  config.quality_snapshot_downscale)
     try:
-        prepared = prepare_run(config, cameras, train_frames, *read_frame_images(cameras, train_frames),
-                               test_frames, *read_frame_images(cameras, test_frames), device=device)
+        prepared = prepare_run(config, cameras, train_frames,
+                               *read_frame_images(cameras, train_frames), test_frames,
+                               test_images, test_masks, device=device)
     except PipelineError as exc:
         raise PipelineError(f"{cameras_path}: {exc}") from None
     model, data = prepared.model, prepared.data
@@ -99,12 +105,14 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
 
     trainer = Trainer(model, data, prepared.test, TrainCallbacks(
         progress=progress, checkpoint=lambda state: save_checkpoint(checkpoint_path, state),
-        message=log.info), device=device, frames=train_frames)
+        message=log.info, quality_snapshot=lambda step, elapsed: snapshots.measure(
+            model, step, elapsed) if test_frames else None), device=device, frames=train_frames)
     ckpt, why = load_checkpoint(checkpoint_path, model.config.identity(), scene, device)
     if ckpt is not None:
         trainer.load_checkpoint(ckpt)
         log.info("resuming from %s at step %d (%.0f s trained)", checkpoint_path, trainer.step,
                  trainer.elapsed_s)
+        snapshots.rows = [r for r in read_snapshots(out) if r["step"] <= trainer.step]
     elif checkpoint_path.exists():
         log.info("%s: not resumed, starting fresh (%s)", checkpoint_path, why)
     try:
@@ -134,6 +142,7 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
         log.warning("the views do not determine %s (95%% interval wider than +-25%%): the "
                     "restored images rest on them", ", ".join(report.undetermined))
     write_log_csv(out / "train_log.csv", result.log)
+    write_snapshots(out, snapshots.rows, snapshots.renders, snapshots.downscale)
     write_json(out / "selection.json", {**result.selection, "final_mode": model.medium.mode,
                                          "water_refits": trainer.water_refits})
     test_text = "n/a" if result.final_test_psnr is None else f"{result.final_test_psnr:.2f} dB"
