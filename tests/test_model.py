@@ -387,3 +387,19 @@ def test_flat_configs_of_version_1_model_files_still_load():
         ("grid", "occupancy", "view")
     assert config.medium.sigma_init == 0.2 and config.field.density_res == [8, 12, 16]
     assert config.optim.lr == 0.01 and config.steps == 7 and config.loss.recon_eps == 1e-2
+
+
+def test_presets_sit_beneath_explicit_settings():
+    fast = TrainConfig.from_dict({"preset": "fast"})
+    balanced = TrainConfig.from_dict({})
+    quality = TrainConfig.from_dict({"preset": "quality"})
+    assert max(fast.field.density_res) < max(balanced.field.density_res) \
+        < max(quality.field.density_res)
+    assert fast.sampler.samples_per_ray < balanced.sampler.samples_per_ray \
+        < quality.sampler.samples_per_ray
+    mine = TrainConfig.from_dict({"preset": "fast", "sampler": {"samples_per_ray": 20}})
+    assert mine.sampler.samples_per_ray == 20 and mine.field.density_res == fast.field.density_res
+    paper = TrainConfig.from_dict({"preset": "paper"})
+    assert (paper.field.kind, paper.sampler.kind, paper.medium.mode) == \
+        ("mlp", "hierarchical", "view")
+    assert TrainConfig.from_dict(paper.to_dict()) == paper

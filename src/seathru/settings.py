@@ -184,6 +184,12 @@ def from_mapping(cls: type, data: Mapping[str, Any] | None, where: str = "") -> 
     hints = _hints(cls)
     known = {f.name: f for f in dataclasses.fields(cls)}
     prefix = f"{where}." if where else ""
+    presets = getattr(cls, "PRESETS", None)
+    if presets is not None and "preset" in known:
+        # a named preset's values sit beneath the explicit ones
+        name = data.get("preset", known["preset"].default)
+        if isinstance(name, str) and name in presets:
+            data = _deep_merge(presets[name], data)
     unknown = sorted(set(data) - set(known))
     if unknown:
         raise SettingsError(f"{prefix}{unknown[0]} is not a setting; known: "
@@ -206,6 +212,16 @@ def from_mapping(cls: type, data: Mapping[str, Any] | None, where: str = "") -> 
         except ValueError as exc:
             raise SettingsError(f"{where or cls.__name__}: {exc}") from None
     return instance
+
+
+def _deep_merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in over.items():
+        if isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
+            merged[key] = _deep_merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
 
 
 def to_dict(settings: Any) -> dict:

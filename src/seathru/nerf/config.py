@@ -148,6 +148,11 @@ class TrainConfig:
     """Training of the SeaThru-NeRF model: object field, sampler, water, losses, optimiser and
     the run's budget. Stops at ``steps`` or after ``max_minutes``, whichever comes first."""
 
+    preset: Literal["fast", "balanced", "quality", "paper"] = setting(
+        "balanced", help="named settings beneath the explicit ones: fast (smaller grids, fewer "
+                         "samples), balanced (the defaults), quality (finer grids, more "
+                         "samples), paper (the paper-faithful configuration: PE MLP, "
+                         "hierarchical 128+32 samples, view-dependent water)")
     field: FieldConfig = section(FieldConfig)
     sampler: SamplerConfig = section(SamplerConfig)
     medium: MediumConfig = section(MediumConfig)
@@ -176,12 +181,14 @@ class TrainConfig:
     def to_dict(self) -> dict:
         return settings.to_dict(self)
 
+
     @classmethod
     def from_dict(cls, data: dict) -> "TrainConfig":
         """From a nested dict (model.pt, checkpoints) or the flat dict of seathru-model/1."""
         if not any(isinstance(v, dict) for v in data.values()):
             data = _nest_flat_v1(data)
         return settings.from_mapping(cls, data)
+
 
     def identity(self) -> dict:
         """The settings that must match for a checkpoint to be resumed."""
@@ -250,6 +257,7 @@ def resolve_batch_rays(config: TrainConfig, device_type: str) -> TrainConfig:
 # samples, view-dependent water and colour, the paper's discretisation with no water beyond the
 # samples, Adam at 5e-4. Used as the baseline of the training benchmark.
 PAPER_OVERRIDES: dict = {
+    "preset": "paper",
     "field": {"kind": "mlp", "view_dependent_colour": True, "min_views": 0},
     "sampler": {"kind": "hierarchical", "coarse_samples": 128, "fine_samples": 32},
     "medium": {"mode": "view", "render_method": "paper", "water_before": False,
@@ -259,3 +267,21 @@ PAPER_OVERRIDES: dict = {
     "batch_rays": 1024,
     "steps": 1000000,
 }
+
+
+# Named training settings (``train.preset``): the explicit settings of a dataset win over them.
+# fast/quality scale the grids and samples of the default (balanced) model; measured against
+# each other and the paper configuration in benchmarks/bench_training.py.
+TRAIN_PRESETS: dict[str, dict] = {
+    "fast": {"field": {"density_res": [64, 96, 128], "plane_res": [96, 192, 256],
+                       "plane_channels": 6},
+             "sampler": {"samples_per_ray": 12, "candidates_linear": 48}},
+    "balanced": {},
+    "quality": {"field": {"density_res": [128, 176, 224], "plane_res": [192, 384, 512],
+                          "plane_channels": 12},
+                "sampler": {"samples_per_ray": 24, "candidates_linear": 96,
+                            "candidates_disparity": 24}},
+    "paper": {k: v for k, v in PAPER_OVERRIDES.items() if k not in ("preset", "steps")},
+}
+# read by seathru.settings.from_mapping (a class attribute, not a setting)
+TrainConfig.PRESETS = TRAIN_PRESETS
