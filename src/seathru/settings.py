@@ -308,7 +308,8 @@ def add_arguments(parser: argparse.ArgumentParser, cls: type, prefix: str = "") 
         help_text += f" (default: {default})" if default is not None else " (default: automatic)"
         inner, optional = _unwrap_optional(tp)
         origin = typing.get_origin(inner)
-        kwargs: dict[str, Any] = {"dest": dest, "default": argparse.SUPPRESS, "help": help_text}
+        kwargs: dict[str, Any] = {"dest": dest, "default": argparse.SUPPRESS,
+                                  "help": help_text.replace("%", "%%")}  # argparse formats help
         if inner is bool:
             kwargs["action"] = argparse.BooleanOptionalAction
         elif origin is Literal:

@@ -98,6 +98,10 @@ class MediumConfig:
     dark_pixel_bound: bool = setting(True, help="refits keep the backscatter below the darkest "
                                                 "pixels at each range (Sea-thru's dark-pixel "
                                                 "estimate)")
+    refit_max_relative: float = setting(
+        1.0, help="a refitted value replaces the current one only if its 95% half-width is "
+                  "below this share of it (and the fit did not run to the edge of the "
+                  "parameter space)")
     refit_steps: int = setting(300, help="most L-BFGS iterations of a water refit")
     auto_select_at: float = setting(0.8, help="auto: progress at which the model is chosen")
     auto_trial_share: float = setting(0.05, help="auto: share of the run each trial trains")

@@ -433,16 +433,25 @@ class Trainer:
         fit = fit_water(data.ranges, data.observed, data.ids, data.groups, before,
                         self.config.medium.refit_steps, model.medium.colour_max,
                         data.dark if self.config.medium.dark_pixel_bound else None)
-        model.medium.set_global(fit.sigma_attn, fit.sigma_bs, fit.c_med)
+        spread = laplace_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups)
+        accepted = refit_acceptance(fit, spread, before, model.medium.colour_max,
+                                    self.config.medium.refit_max_relative)
+        after = {k: [f if ok else b for f, b, ok in zip(getattr(fit, k), before[k],
+                                                        accepted[k])] for k in WATER_KEYS}
+        model.medium.set_global(after["sigma_attn"], after["sigma_bs"], after["c_med"])
         for param in model.medium.global_parameters():
             self.optimizer.state.pop(param, None)
         record.update({"pixels": fit.pixels, "groups": fit.groups, "seconds":
                        round(time.perf_counter() - started, 2),
                        "before": {k: before[k] for k in WATER_KEYS},
-                       "after": {k: getattr(fit, k) for k in WATER_KEYS}})
+                       "fitted": {k: getattr(fit, k) for k in WATER_KEYS},
+                       "halfwidth95": spread.halfwidth, "accepted": accepted, "after": after})
+        kept = sum(not ok for values in accepted.values() for ok in values)
         self._say(f"step {self.step}: water refitted on {fit.pixels} surface pixels: "
-                  f"sigma_attn {_fmt(before['sigma_attn'])} -> {_fmt(fit.sigma_attn)}, "
-                  f"sigma_bs {_fmt(before['sigma_bs'])} -> {_fmt(fit.sigma_bs)} (normalised)")
+                  f"sigma_attn {_fmt(before['sigma_attn'])} -> {_fmt(after['sigma_attn'])}, "
+                  f"sigma_bs {_fmt(before['sigma_bs'])} -> {_fmt(after['sigma_bs'])}, c_med "
+                  f"{_fmt(before['c_med'])} -> {_fmt(after['c_med'])} (normalised; {kept} of 9 "
+                  "values kept: the views do not determine them)")
         return record
 
     @torch.no_grad()
@@ -688,6 +697,25 @@ class ThreadTuner:
             self.current = best
             torch.set_num_threads(best)
             self.times = {}
+
+
+def refit_acceptance(fit, spread, before: dict, colour_max: float,
+                     max_relative: float) -> dict[str, list[bool]]:
+    """Which refitted values replace the current ones: those the views determine.
+
+    A value is kept out when its 95% half-width exceeds ``max_relative`` of it, or when the fit
+    ran to the edge of the parameter space (a coefficient collapsing below 1% of its current
+    value, a veiling light at 95% of ``colour_max``): there the curvature says nothing and the
+    fit has traded the water for the surfaces' colours.
+    """
+    accepted = {}
+    for key in WATER_KEYS:
+        flags = []
+        for value, half, current in zip(getattr(fit, key), spread.halfwidth[key], before[key]):
+            edge = value >= 0.95 * colour_max if key == "c_med" else value < 0.01 * current
+            flags.append(bool(half <= max_relative * abs(value) and not edge))
+        accepted[key] = flags
+    return accepted
 
 
 def _fmt(values) -> str:
