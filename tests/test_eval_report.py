@@ -12,7 +12,8 @@ import pytest
 
 from seathru.eval import summary as dataset_summary
 from seathru.eval.report import (NOT_RUN, DatasetRecord, StepLog, diagnose_failure, medium_name,
-                                 render_html, summary_table)
+                                 psnr_rise, render_html, stopped_by, summary_table,
+                                 training_warnings)
 from seathru.eval.summary import EvaluationSummary, RenderSpeed, TrainingSummary
 from seathru.steps import STEP_ORDER
 
@@ -109,3 +110,75 @@ def test_training_summary_from_the_log():
                                        final_test_psnr=9.0)
     assert dataset_summary.training_summary(None) is None
     assert dataset_summary.training_summary(pd.DataFrame({"step": [1]})) is None
+
+
+# -- warnings: "needs a look" ------------------------------------------------------------------
+
+def _log(times, test=None, train=None) -> pd.DataFrame:
+    data = {"wall_time_s": times}
+    if test is not None:
+        data["test_psnr"] = test
+    if train is not None:
+        data["train_psnr"] = train
+    return pd.DataFrame(data)
+
+
+def test_psnr_rise_over_the_last_share_of_time():
+    rise = psnr_rise(_log([0.0, 50.0, 80.0, 100.0], test=[10.0, 20.0, 24.0, 25.0]))
+    assert rise["column"] == "test_psnr" and rise["from_s"] == 80.0
+    assert rise["rise_db"] == pytest.approx(1.0) and rise["final_psnr"] == 25.0
+    # interpolated at 80 s between 50 s (20 dB) and 100 s (26 dB); NaN rows skipped
+    rise = psnr_rise(_log([0.0, 50.0, 75.0, 100.0], test=[10.0, 20.0, np.nan, 26.0]))
+    assert rise["rise_db"] == pytest.approx(26.0 - 23.6)
+    # held-out values only at the end: the training PSNR is used
+    rise = psnr_rise(_log([0.0, 90.0, 100.0], test=[np.nan, 20.0, 21.0],
+                          train=[5.0, 19.0, 22.0]), window=0.5)
+    assert rise["column"] == "train_psnr"
+    assert rise["rise_db"] == pytest.approx(22.0 - (5.0 + 14.0 * 50.0 / 90.0))
+    assert psnr_rise(None) is None and psnr_rise(_log([0.0], test=[1.0])) is None
+
+
+def test_stopped_by_reads_the_train_log():
+    lines = ["step 5: medium 'global'", "trained 300 steps in 7 s (stopped by time; 37.2 "
+             "steps/s, 19066 rays/s); held-out PSNR 19.25 dB; medium global"]
+    assert stopped_by(lines) == "time"
+    assert stopped_by(["trained 1 steps in 1 s (stopped by steps)"]) == "steps"
+    assert stopped_by(["nothing"]) is None
+
+
+def test_training_warnings_for_water_off_and_rising_psnr():
+    rising = _log([0.0, 80.0, 100.0], test=[10.0, 20.0, 23.0])
+    found = training_warnings({"requested": "auto", "chosen": "off", "final_mode": "off",
+                               "reason": "fitted water is negligible"}, rising, "time",
+                              rising_db=1.0)
+    assert [w["code"] for w in found] == ["water_model_off", "not_converged"]
+    assert all(w["step"] == "train" for w in found)
+    assert "fitted water is negligible" in found[0]["message"]
+    assert "train.medium.mode=global" in found[0]["message"]
+    assert "3.00 dB" in found[1]["message"] and "time budget" in found[1]["message"]
+    assert "train.max_minutes" in found[1]["message"]
+    assert found[1]["details"]["stopped_by"] == "time"
+    steps = training_warnings(None, rising, "steps")
+    assert "raise train.steps" in steps[0]["message"]
+    # asked for no water, or converged: nothing to look at
+    assert training_warnings({"requested": "off", "chosen": "off"},
+                             _log([0.0, 80.0, 100.0], test=[10.0, 22.9, 23.0])) == []
+    assert training_warnings({"requested": "auto", "final_mode": "global"}, rising,
+                             rising_db=5.0) == []
+
+
+def test_summary_table_and_html_mark_datasets_with_warnings():
+    look = {"step": "poses", "code": "unconfirmed_poses",
+            "message": "the camera model was not confirmed <attempts 1 and 2>", "details": {}}
+    records = [DatasetRecord("calm", summary=_summary("calm", 30.0)),
+               DatasetRecord("doubtful", summary=_summary("doubtful", 25.0), warnings=[look])]
+    table = summary_table(records).set_index("dataset")
+    assert table.loc["calm", "warnings"] == 0 and pd.isna(table.loc["calm", "needs_a_look"])
+    assert table.loc["doubtful", "warnings"] == 1
+    assert table.loc["doubtful", "needs_a_look"] == "poses: unconfirmed_poses"
+    page = render_html(summary_table(records), records, {}, {}, "now")
+    assert '<tr class="warn">' in page and '<tr class="ok">' in page
+    assert "1 with warnings" in page and "<h2>Needs a look</h2>" in page
+    assert "&lt;attempts 1 and 2&gt;" in page and "<attempts" not in page
+    row = page.split('<tr class="warn">')[1].split("</tr>")[0]
+    assert "&#9888;" in row and "poses: unconfirmed_poses" in row

@@ -20,7 +20,8 @@ from skimage.transform import downscale_local_mean
 from seathru.radiometry import linearise
 from seathru.errors import PipelineError
 from seathru.io import raw as rawio
-from seathru.io.image_folder import resolve_input, select_files
+from seathru.io.dataset_readers import frame_names, layout_images
+from seathru.io.image_folder import resolve_input, select_files, select_paths
 from seathru.steps import ingest
 
 rawpy = pytest.importorskip("rawpy")
@@ -542,3 +543,152 @@ def test_simulated_dngs_round_trip_to_the_water_images(tmp_path):
     unnormalised = ratios(raw, tmp_path / "raw_out").mean(axis=1)
     np.testing.assert_allclose(unnormalised / unnormalised[0], np.array(times) / times[0],
                                rtol=0.02)
+
+
+# --- posed datasets in their own layout (--layout) ------------------------------------------
+
+def _ramp(size=(12, 8), value=100) -> np.ndarray:
+    """An 8-bit RGB image: ``value`` plus a ramp (a constant image is rejected as empty)."""
+    ramp = value + np.arange(size[0] * size[1]).reshape(size[1], size[0]) % 50
+    return np.repeat(ramp[..., None], 3, axis=2).astype(np.uint8)
+
+
+def _pngs(folder: Path, names, size=(12, 8), value=100) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        cv2.imwrite(str(folder / name), _ramp(size, value))
+
+
+def _poses_bounds(folder: Path, rows: int) -> None:
+    np.save(folder / "poses_bounds.npy", np.zeros((rows, 17)))
+
+
+def test_llff_layout_prefers_images_wb_then_the_folder_with_one_image_per_row(tmp_path):
+    root = tmp_path / "llff"
+    _pngs(root / "images_wb", ["a.png", "b.png", "c.png"])
+    _pngs(root / "images", ["IMG_1.JPG.png", "IMG_2.png", "IMG_3.png"], size=(24, 16))
+    _pngs(root / "images_4", ["a.png", "b.png", "c.png"], size=(6, 4))
+    _poses_bounds(root, 3)
+    found = layout_images("llff", root)
+    assert found.folder == "images_wb" and found.kind == "linear"
+    assert "SeaThru-NeRF" in found.reason and [n for _, n in found.files] == ["a", "b", "c"]
+    chosen = layout_images("llff", root, "Images_4")   # a name, matched case-insensitively
+    assert chosen.folder == "images_4" and chosen.kind is None
+    assert chosen.reason == "ingest.images=Images_4"
+    with pytest.raises(PipelineError, match="no image folder 'images_2'.*images, images_4"):
+        layout_images("llff", root, "images_2")
+    # images_wb with a wrong count is passed over for the next folder that matches the rows
+    (root / "images_wb" / "c.png").unlink()
+    assert layout_images("llff", root).folder == "images"
+    _poses_bounds(root, 5)
+    with pytest.raises(PipelineError, match=r"5 rows; folders: images_wb \(2\), images \(3\)"):
+        layout_images("llff", root)
+    with pytest.raises(PipelineError, match="poses_bounds.npy: not found"):
+        layout_images("llff", tmp_path / "llff" / "images")
+
+
+def test_nerfstudio_layout_follows_file_paths_and_lists_missing_frames(tmp_path):
+    root = tmp_path / "ns"
+    _pngs(root / "images", ["f1.png", "f2.png"])
+    _pngs(root / "images" / "cam1", ["f3.png"])
+    _pngs(root / "images_2", ["f1.png", "f2.png"], size=(6, 4))
+    frames = [{"file_path": p, "transform_matrix": np.eye(4).tolist()}
+              for p in ("images/f1.png", "./images/f2.png", "images/cam1/f3.png", "images/f4.png",
+                        "images/f5")]
+    (root / "transforms.json").write_text(json.dumps({"frames": frames}))
+    found = layout_images("nerfstudio", root)
+    assert [(p.relative_to(root).as_posix(), n) for p, n in found.files] == [
+        ("images/f1.png", "f1"), ("images/f2.png", "f2"), ("images/cam1/f3.png", "f3")]
+    assert [m["name"] for m in found.missing] == ["f4", "f5"]
+    half = layout_images("nerfstudio", root, "images_2")   # nerfstudio's downscale folders
+    assert [p.parent.name for p, _ in half.files] == ["images_2", "images_2"]
+    assert [m["name"] for m in half.missing] == ["f3", "f4", "f5"]
+    (root / "transforms.json").write_text(json.dumps({"frames": [{"transform_matrix": []}]}))
+    with pytest.raises(PipelineError, match="frame 0: field 'file_path' missing"):
+        layout_images("nerfstudio", root)
+
+
+def test_frame_names_stay_unique_across_subfolders():
+    assert frame_names(["images/a.jpg", "images/b.JPG"]) == ["a", "b"]
+    assert frame_names(["cam0/0001.jpg", "cam1/0001.jpg", "./x.png"]) == [
+        "cam0__0001", "cam1__0001", "x"]
+
+
+def test_select_paths_names_and_duplicates(tmp_path):
+    _pngs(tmp_path / "a", ["1.png"])
+    _pngs(tmp_path / "b", ["1.png"])
+    (tmp_path / "notes.txt").write_text("x")
+    selected, rejected, detection = select_paths(
+        [(tmp_path / "a" / "1.png", "a__1"), (tmp_path / "b" / "1.png", "a__1"),
+         (tmp_path / "notes.txt", "notes")], "auto")
+    assert [(n, k) for _, n, k in selected] == [("a__1", "srgb")]
+    assert "duplicate image name 'a__1'" in rejected[0]["reason"]
+    assert detection["ignored"] == ["notes.txt"]
+    with pytest.raises(PipelineError, match="no image files"):
+        select_paths([(tmp_path / "notes.txt", "notes")], "auto")
+
+
+def test_ingest_of_a_colmap_layout_decodes_the_model_images(tmp_path):
+    pycolmap = pytest.importorskip("pycolmap")
+    root = tmp_path / "colmap"
+    _pngs(root / "images" / "sub", ["a.png", "b.png", "c.png"], value=200)
+    model = root / "sparse" / "0"
+    model.mkdir(parents=True)
+    (model / "cameras.txt").write_text("1 PINHOLE 12 8 10 10 6 4\n")
+    (model / "images.txt").write_text("".join(
+        f"{i} 1 0 0 0 {i} 0 0 1 {name}\n\n" for i, name in
+        enumerate(["sub/a.png", "sub/b.png", "sub/c.png", "sub/gone.png"], start=1)))
+    (model / "points3D.txt").write_text("")
+    assert pycolmap.Reconstruction(model).num_images() == 4
+    manifest = run_ingest("--input", root, "--layout", "colmap", "--out", tmp_path / "out",
+                          "--workers", 1, "--wb", "none")
+    assert [image["name"] for image in manifest["images"]] == ["a", "b", "c"]
+    layout = manifest["input"]["layout"]
+    assert layout["layout"] == "colmap" and layout["images"] == "images"
+    assert [m["name"] for m in layout["missing"]] == ["gone"]
+    warnings = json.loads((tmp_path / "out" / "warnings.json").read_text())["warnings"]
+    assert [w["code"] for w in warnings] == ["missing_frames"]
+    with pytest.raises(PipelineError, match="no COLMAP model found"):
+        run_ingest("--input", root / "images", "--layout", "colmap", "--out", tmp_path / "o2")
+
+
+def test_colmap_layout_of_the_release_finds_images_wb_under_other_extensions(tmp_path):
+    """The SeaThru-NeRF release as a colmap source: sparse/0 beside images_wb/ (no images/),
+    the model naming the camera's JPEGs, the folder holding PNGs."""
+    root = tmp_path / "release"
+    _pngs(root / "images_wb", ["IMG_1.png", "IMG_2.png"])
+    model = root / "sparse" / "0"
+    model.mkdir(parents=True)
+    (model / "cameras.txt").write_text("1 PINHOLE 12 8 10 10 6 4\n")
+    (model / "images.txt").write_text("1 1 0 0 0 0 0 0 1 IMG_1.JPG\n\n"
+                                      "2 1 0 0 0 1 0 0 1 IMG_2.JPG\n\n")
+    (model / "points3D.txt").write_text("")
+    found = layout_images("colmap", root)
+    assert found.folder == "images_wb" and found.kind == "linear" and found.missing == []
+    assert [(p.name, n) for p, n in found.files] == [("IMG_1.png", "IMG_1"),
+                                                     ("IMG_2.png", "IMG_2")]
+
+
+def test_ingest_of_the_release_layout_reads_images_wb_as_linear(tmp_path):
+    root = tmp_path / "release"
+    _pngs(root / "images_wb", ["a.png", "b.png", "c.png"], value=128)
+    _poses_bounds(root, 3)
+    manifest = run_ingest("--input", root, "--layout", "llff", "--out", tmp_path / "out",
+                          "--workers", 1, "--wb", "none", "--no-exposure-normalise")
+    assert manifest["input"]["kind"] == "linear" and manifest["settings"]["kind"] == "auto"
+    assert manifest["input"]["layout"]["images"] == "images_wb"
+    linear = tifffile.imread(tmp_path / "out" / manifest["images"][0]["linear"])
+    np.testing.assert_allclose(linear, _ramp(value=128) / 255, rtol=1e-6)   # no inverse sRGB
+    srgb = run_ingest("--input", root, "--layout", "llff", "--out", tmp_path / "srgb",
+                      "--workers", 1, "--wb", "none", "--no-exposure-normalise", "--kind", "srgb")
+    assert srgb["input"]["kind"] == "srgb"   # an explicit kind wins
+
+
+def test_images_setting_names_the_subfolder_of_a_plain_source(tmp_path):
+    _pngs(tmp_path / "dive" / "images", ["a.png", "b.png", "c.png"])
+    with pytest.raises(PipelineError, match="subfolders with images: images"):
+        run_ingest("--input", tmp_path / "dive", "--out", tmp_path / "out")
+    manifest = run_ingest("--input", tmp_path / "dive", "--images", "images", "--out",
+                          tmp_path / "out", "--workers", 1)
+    assert len(manifest["images"]) == 3 and manifest["input"]["subdir"] == "images"
+    assert manifest["input"]["layout"] is None

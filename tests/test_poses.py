@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shutil
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from seathru.geometry.poses import (FAR_MARGIN, NEAR_MARGIN, compare_trajectorie
                                    rotation_angle_deg, umeyama, unit_ball_normalisation)
 from seathru.errors import PipelineError
 from seathru.io.cameras import read_cameras
+from seathru.io.warnings import read_warnings
 from seathru.io.colmap import make_camera, undistortion
 from seathru.geometry.intrinsics import focal_from_metadata
 
@@ -471,6 +473,99 @@ def test_unrelated_images_fail_with_advice_and_leave_nothing(tmp_path):
     assert "global mapping" in message and "exhaustive matching" in message  # retries listed
     assert not out.exists()
     assert list((tmp_path / "results").iterdir()) == []
+
+
+@pytest.fixture(scope="module")
+def small_fern_ingest(fern_ingest, tmp_path_factory) -> Path:
+    """8 of fern's frames (every other one), as the ingest step lays them out."""
+    root = tmp_path_factory.mktemp("small_fern")
+    for folder in ("matching", "linear", "masks"):
+        (root / folder).mkdir()
+        for path in sorted((fern_ingest / folder).iterdir())[:16:2]:
+            shutil.copy(path, root / folder / path.name)
+    return root
+
+
+def test_an_unconfirmed_model_fails_by_default_naming_what_to_try(small_fern_ingest, tmp_path):
+    """No model can pass a gate of 0.0001 px: the step fails and leaves nothing."""
+    out = tmp_path / "poses"
+    with pytest.raises(PipelineError) as failure:
+        run_poses("--ingest", str(small_fern_ingest), "--out", str(out), "--threads", THREADS,
+                  "--max-reproj-px", "0.0001", "--no-retry", "--no-cross-check")
+    message = str(failure.value)
+    assert message.startswith("the camera model was not confirmed")
+    assert re.search(r"mean reprojection error 0\.\d+ px above 0\.0001 px", message), message
+    for option in ("poses.matcher=exhaustive", "poses.mapper=global", "poses.max_image_size",
+                   "poses.clahe=false", "poses.on_unconfirmed=warn"):
+        assert option in message
+    assert not out.exists()
+
+
+def test_an_unconfirmed_model_kept_with_warn_names_the_disagreement(small_fern_ingest, tmp_path):
+    """Both mappers on the same matches, a cross-check no two models can pass: kept, with the
+    disagreement in report.json and warnings.json."""
+    out = tmp_path / "poses"
+    run_poses("--ingest", str(small_fern_ingest), "--out", str(out), "--threads", THREADS,
+              "--max-disagreement", "1e-9", "--no-retry", "--on-unconfirmed", "warn")
+    report = json.loads((out / "report.json").read_text())
+    assert report["gate_passed"] is False and report["on_unconfirmed"] == "warn"
+    comparison = report["attempts"][1]["comparisons"][0]
+    assert comparison["with_attempt"] == 1 and comparison["max_centre_deviation"] > 1e-9
+    warnings = read_warnings(out / "warnings.json")
+    assert [w["code"] for w in warnings] == ["unconfirmed_poses"]
+    message = warnings[0]["message"]
+    assert f"{comparison['max_centre_deviation']:.2%} of the camera extent" in message
+    assert "attempts 1 and 2 disagree on the poses" in message
+    assert "kept because poses.on_unconfirmed=warn" in message
+    assert "poses.mapper=" not in message   # both mappers were tried already
+    assert len(read_cameras(out / "cameras.json").frames) == 8
+
+
+def test_nerfstudio_k1_to_k4_become_an_equivalent_colmap_camera():
+    """nerfstudio's radial factor 1 + k1 r^2 + ... + k4 r^8 through COLMAP's FULL_OPENCV."""
+    from seathru.io.dataset_readers import _nerfstudio_camera
+
+    params = {"w": 640, "h": 480, "fl_x": 500.0, "fl_y": 505.0, "cx": 321.0, "cy": 238.5,
+              "k1": -0.12, "k2": 0.03, "k3": -0.004, "k4": 0.0006, "p1": 0.001, "p2": -0.0005}
+    camera = _nerfstudio_camera(params, "test")
+    assert camera.model_name == "FULL_OPENCV"
+    rng = np.random.default_rng(0)
+    x, y = rng.uniform(-0.7, 0.7, (2, 500))
+    r2 = x * x + y * y
+    radial = 1 + r2 * (-0.12 + r2 * (0.03 + r2 * (-0.004 + r2 * 0.0006)))
+    xd = x * radial + 2 * 0.001 * x * y + -0.0005 * (r2 + 2 * x * x)
+    yd = y * radial + 0.001 * (r2 + 2 * y * y) + 2 * -0.0005 * x * y
+    expected = np.c_[500.0 * xd + 321.0, 505.0 * yd + 238.5]
+    pixels = camera.img_from_cam(np.c_[x, y, np.ones_like(x)])
+    np.testing.assert_allclose(pixels, expected, atol=0.05)
+    with pytest.raises(PipelineError, match="cannot be represented"):
+        _nerfstudio_camera({**params, "k4": 5.0, "k1": 2.0}, "wild")
+
+
+def test_llff_rows_are_named_by_the_folder_ingest_read(tmp_path):
+    """An images_N folder whose names differ from images/ (LLFF's own layout)."""
+    source, ingest = tmp_path / "dataset", tmp_path / "ingest"
+    (ingest / "linear").mkdir(parents=True)
+    for folder, names in (("images", ["IMG_9.JPG", "IMG_7.JPG"]),
+                          ("images_8", ["image000.png", "image001.png"])):
+        (source / folder).mkdir(parents=True)
+        for name in names:
+            cv2.imwrite(str(source / folder / name), np.zeros((30, 40, 3), np.uint8))
+    for name in ("image000", "image001"):
+        cv2.imwrite(str(ingest / "linear" / f"{name}.png"), np.zeros((15, 20, 3), np.uint8))
+    rows = [np.concatenate([np.c_[np.eye(3), [[i], [0.0], [0.0]], [[30.0], [40.0], [35.0]]]
+                            .ravel(), [1.0, 10.0]]) for i in range(2)]
+    np.save(source / "poses_bounds.npy", np.array(rows))
+    (ingest / "manifest.json").write_text(json.dumps({"input": {"layout": {
+        "layout": "llff", "root": str(source), "images": "images_8"}}}))
+    out = tmp_path / "out"
+    run_poses("--ingest", str(ingest), "--out", str(out), "--source", "llff", "--source-dir",
+              str(source), "--test-every", "0")
+    report = json.loads((out / "report.json").read_text())
+    assert report["reader_notes"]["names_from"] == str(source / "images_8")
+    assert [f.name for f in read_cameras(out / "cameras.json").frames] == ["image000",
+                                                                           "image001"]
+    assert read_warnings(out / "warnings.json") == []
 
 
 @pytest.mark.slow

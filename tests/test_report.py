@@ -15,6 +15,7 @@ import pytest
 from seathru.cli import main
 from seathru.io.cameras import read_cameras
 from seathru.io.images import read_image
+from seathru.io.warnings import step_warning, write_warnings
 from seathru.steps.render import render_dataset
 from tests.test_render_evaluate import RENDER_SETTINGS, make_fake_dataset
 
@@ -38,7 +39,13 @@ def report(tmp_path_factory):
             arguments += ["--truth", str(fake["truth"])]
         assert main(arguments) == 0
         (logs / dataset).mkdir(parents=True)
-        (logs / dataset / "train.log").write_text("step 100 loss 0.005\n")
+        (logs / dataset / "train.log").write_text(
+            "step 100 loss 0.005\n" + ("trained 100 steps in 42 s (stopped by time; 2.4 steps/s)"
+                                       "\n" if dataset == "real" else ""))
+    # a camera model kept with poses.on_unconfirmed=warn
+    write_warnings(results / "real" / "poses" / "warnings.json", [step_warning(
+        "poses", "unconfirmed_poses", "the camera model was not confirmed: attempts 1 and 2 "
+        "disagree on the poses", attempt=2)])
 
     # failed in ingest; an older poses log from a previous run has an error line too
     (logs / "broken").mkdir(parents=True)
@@ -87,6 +94,21 @@ def test_summary_table_lists_every_dataset_with_status(report):
     assert rows.loc["sim", "train_time_s"] == pytest.approx(41.5)
     assert rows.loc["sim", "medium"] == "seathru"
     assert rows.loc["sim", "render_fps"] > 0
+
+
+def test_warnings_reach_the_needs_a_look_column(report):
+    table = pd.read_csv(report["out"] / "summary.csv").set_index("dataset")
+    # both fake training logs end with the held-out PSNR still rising (24 dB at 41.5 s, about
+    # 21 dB at 80% of that time): far from converged
+    assert table.loc["sim", "needs_a_look"] == "train: not_converged"
+    assert table.loc["real", "needs_a_look"] == "poses: unconfirmed_poses; train: not_converged"
+    assert table.loc["real", "warnings"] == 2
+    assert pd.isna(table.loc["broken", "needs_a_look"]) and table.loc["broken", "warnings"] == 0
+    page = (report["out"] / "summary.html").read_text()
+    assert "<h2>Needs a look</h2>" in page and "2 with warnings" in page
+    assert "attempts 1 and 2 disagree on the poses" in page
+    assert "stopped at its time budget" in page   # real's train.log: stopped by time
+    assert "reached train.steps" not in page.split("<b>real</b>")[1].split("</ul>")[0]
 
 
 def test_plots_and_strips_are_images(report):

@@ -63,6 +63,7 @@ def _sheet(tmp_path: Path, rows: list[str], header: str = "dataset\tsource\tpath
         (["d1\tsimulated\t\tpainting.x=1"], None, "unknown step 'painting'"),
         (["d1\tsimulated\t\tingest.out=/tmp"], None, "set by the workflow"),
         (["d1\tsimulated\t\ttrain.threads=8"], None, "train.threads is set by the workflow"),
+        (["d1\tsimulated\t\tingest.layout=llff"], None, "ingest.layout is set by the workflow"),
         (["d 1\tsimulated\t\t"], None, "field 'dataset'"),
         (["d1\tsimulated\t\t", "d1\tsimulated\t\t"], None, "appears more than once"),
         (["d1\tsimulated\t\t", "x\tsimulated\t\ttrain.medium.mode=soup"], None,
@@ -335,3 +336,42 @@ def test_test_configuration_plans_every_stage_of_its_datasets(tmp_path):
     for rule, count in (("simulate", simulated), ("ingest", datasets), ("train", datasets),
                         ("report", 1)):
         assert re.search(rf"^{rule}\s+{count}$", result.stdout, re.M), (rule, result.stdout)
+
+
+def test_each_source_reaches_its_images_and_poses(tmp_path):
+    """The flags the rules pass per source: posed layouts go to ingest as --layout (the
+    ingest.images option chooses their image folder) and to poses as their reader."""
+    rows = []
+    for dataset, source, options in (("dive_raw", "raw", ""), ("dive_jpg", "images", ""),
+                                     ("release", "llff", ""),
+                                     ("llff4", "llff", "ingest.images=images_4"),
+                                     ("ns", "nerfstudio", ""), ("cm", "colmap", ""),
+                                     ("sim", "simulated", "")):
+        folder = tmp_path / dataset
+        folder.mkdir()
+        rows.append(f"{dataset}\t{source}\t{'' if source == 'simulated' else folder}\t{options}")
+    sheet = _sheet(tmp_path, rows)
+    result = snakemake("-n", "-p", "--cores", "1", "--forceall", "--config", f"datasets={sheet}")
+    assert result.returncode == 0, result.stderr[-3000:]
+    commands = _shell_commands(result.stdout)
+
+    def argv(step, dataset):
+        return shlex.split(commands[(step, dataset)].split(" > ")[0])
+
+    def value(args, flag):
+        return args[args.index(flag) + 1] if flag in args else None
+
+    for dataset, layout, reader in (("release", "llff", "llff"), ("llff4", "llff", "llff"),
+                                    ("ns", "nerfstudio", "nerfstudio"),
+                                    ("cm", "colmap", "colmap-model")):
+        ingest, poses = argv("ingest", dataset), argv("poses", dataset)
+        assert value(ingest, "--layout") == layout and "--subdir" not in ingest, ingest
+        assert value(ingest, "--input") == str(tmp_path / dataset)
+        assert value(poses, "--source") == reader
+        assert value(poses, "--source-dir") == str(tmp_path / dataset)
+    assert value(argv("ingest", "llff4"), "--images") == "images_4"
+    for dataset in ("dive_raw", "dive_jpg"):
+        assert "--layout" not in argv("ingest", dataset)
+        assert value(argv("poses", dataset), "--source") == "colmap"
+    assert value(argv("ingest", "dive_raw"), "--kind") == "raw"
+    assert value(argv("ingest", "sim"), "--subdir") == "raw"

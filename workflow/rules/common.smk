@@ -13,13 +13,14 @@ import yaml
 from snakemake.utils import validate
 
 SOURCES = ("simulated", "raw", "images", "llff", "colmap", "nerfstudio")
-STEPS = ("simulate", "ingest", "poses", "train", "render", "evaluate", "report")
+STEPS = ("simulate", "ingest", "poses", "export", "train", "render", "evaluate", "report")
 # Flags the workflow sets itself in each step's shell line; neither a dataset's options nor
 # the config may set them. Thread counts (`threads`, `workers`) come from `resources`.
 RESERVED_FLAGS = {
     "simulate": {"out"},
-    "ingest": {"input", "out", "subdir", "workers"},
+    "ingest": {"input", "out", "subdir", "layout", "workers"},
     "poses": {"ingest", "out", "threads", "source", "source_dir"},
+    "export": {"poses", "out"},
     "train": {"cameras", "out", "checkpoint_dir", "threads"},
     "render": {"model", "cameras", "out", "threads"},
     "evaluate": {"renders", "cameras", "train_dir", "truth", "out", "threads"},
@@ -379,13 +380,16 @@ def ingest_input(wildcards):
 
 
 def ingest_source_flags(wildcards):
+    """Where ingest finds a dataset's images: the simulation's raw/, the sheet's folder (raw,
+    images; ingest.images may name a subfolder), or the images a posed dataset holds in its own
+    layout (llff, colmap, nerfstudio: --layout; ingest.images chooses the image folder)."""
     kind = source(wildcards.dataset)
     if kind == "simulated":
         return "--subdir raw --kind raw"
     if kind == "raw":
         return "--kind raw"
-    if kind == "colmap":
-        return "--subdir images"
+    if kind in ("llff", "colmap", "nerfstudio"):
+        return f"--layout {kind}"
     return ""
 
 

@@ -1,6 +1,12 @@
-"""The cross-dataset report: one row per dataset of the sheet, why failed datasets failed, and
-the self-contained HTML page (``templates/report.html.j2``). Pure, no file I/O: the report step
-reads the files into :class:`DatasetRecord` and :class:`StepLog` and writes what these return.
+"""The cross-dataset report: one row per dataset of the sheet, why failed datasets failed, what
+needs a look in the others, and the self-contained HTML page (``templates/report.html.j2``).
+Pure, no file I/O: the report step reads the files into :class:`DatasetRecord` and
+:class:`StepLog` and writes what these return.
+
+"Needs a look": the warnings the steps wrote (``warnings.json``, ``seathru.io.warnings``), and
+two the report derives from the train step's outputs (:func:`training_warnings`): the water
+model turned off by ``medium.mode=auto``, and training that ended with its held-out PSNR still
+rising fast (far from convergence).
 """
 
 from __future__ import annotations
@@ -9,7 +15,7 @@ import base64
 import json
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -18,14 +24,16 @@ from seathru.eval.summary import EvaluationSummary
 from seathru.eval.truth import WATER_KEYS
 
 ERROR_LINE = re.compile(r"seathru (?P<step>[\w-]+): error: (?P<message>.*)")
+STOPPED_BY_LINE = re.compile(r"\(stopped by (?P<cause>\w+)[;)]")
 NOT_RUN = "no results and no logs (not run yet?)"
 TABLE_COLUMNS = (
-    "dataset", "source", "options", "status", "failed_step", "error", "views",
+    "dataset", "source", "options", "status", "warnings", "needs_a_look", "failed_step",
+    "error", "views",
     "psnr_linear", "ssim_linear", "psnr_srgb", "ssim_srgb", "lpips",
     "restored_psnr_linear", "restored_ssim_linear", "full_vs_clean_psnr_linear",
     "depth_median_abs_rel", "depth_corr", "train_time_s", "train_steps", "render_fps",
     "render_resolution", "medium")
-ALWAYS_SHOWN = ("dataset", "status", "error", "failed_step")
+ALWAYS_SHOWN = ("dataset", "status", "warnings", "needs_a_look", "error", "failed_step")
 
 
 @dataclass
@@ -51,6 +59,7 @@ class DatasetRecord:
     metrics: pd.DataFrame | None = None
     train_log: pd.DataFrame | None = None
     water: dict[str, list[float]] | None = None   # fitted water per source unit (water.json)
+    warnings: list[dict] = field(default_factory=list)  # {step, code, message, details}
 
 
 def diagnose_failure(logs: Sequence[StepLog], step_order: Sequence[str]) -> tuple[str | None, str]:
@@ -93,14 +102,99 @@ def medium_name(selection) -> str | None:
     return json.dumps(selection)[:80]
 
 
+def stopped_by(lines: Sequence[str]) -> str | None:
+    """What ended training (``steps`` or ``time``), from the train step's log lines, or None."""
+    return next((m["cause"] for m in map(STOPPED_BY_LINE.search, reversed(lines)) if m), None)
+
+
+def psnr_rise(train_log: pd.DataFrame | None, window: float = 0.2) -> dict | None:
+    """How much the PSNR rose over the last ``window`` share of training time.
+
+    Uses the held-out ``test_psnr`` when it has values before the window and at the end, else
+    ``train_psnr``; the value at the window's start is interpolated linearly in time.
+
+    Returns:
+        ``{"column", "rise_db", "from_s", "to_s", "final_psnr"}``, or None without enough
+        values.
+
+    Example::
+
+        psnr_rise(pd.DataFrame({"wall_time_s": [0, 8, 10], "test_psnr": [10, 18, 20]}))
+        # -> {"column": "test_psnr", "rise_db": 2.0, "from_s": 8.0, ...}
+    """
+    if train_log is None or "wall_time_s" not in train_log:
+        return None
+    for column in ("test_psnr", "train_psnr"):
+        if column not in train_log:
+            continue
+        rows = train_log[["wall_time_s", column]].apply(pd.to_numeric, errors="coerce").dropna()
+        times, values = rows["wall_time_s"].to_numpy(float), rows[column].to_numpy(float)
+        if len(times) < 2 or times[-1] <= 0:
+            continue
+        start = (1.0 - window) * times[-1]
+        if times[0] > start:
+            continue
+        begin = float(np.interp(start, times, values))
+        return {"column": column, "rise_db": float(values[-1] - begin), "from_s": float(start),
+                "to_s": float(times[-1]), "final_psnr": float(values[-1])}
+    return None
+
+
+def _warning(code: str, message: str, **details) -> dict:
+    return {"step": "train", "code": code, "message": message, "details": details}
+
+
+def training_warnings(selection, train_log: pd.DataFrame | None, stopped: str | None = None,
+                      rising_db: float = 1.0, window: float = 0.2) -> list[dict]:
+    """Warnings the report derives from the train step's outputs (``{step, code, message,
+    details}``, as ``seathru.io.warnings``).
+
+    Args:
+        selection: the content of ``selection.json`` (the medium model chosen and why).
+        train_log: ``train_log.csv``; stopped: ``steps`` / ``time`` / None (:func:`stopped_by`).
+        rising_db, window: training is far from converged when the PSNR rose more than
+            ``rising_db`` over the last ``window`` share of its time (:func:`psnr_rise`).
+    """
+    found = []
+    if isinstance(selection, dict):
+        chosen = selection.get("final_mode", selection.get("chosen"))
+        if chosen == "off" and selection.get("requested") != "off":
+            reason = selection.get("reason") or "no reason recorded"
+            found.append(_warning(
+                "water_model_off", f"the water model was turned off ({reason}); the model is a "
+                f"plain NeRF and its 'restored' images keep the water's colour; if this dive has "
+                f"water, set train.medium.mode=global", requested=selection.get("requested"),
+                chosen=chosen))
+    rise = psnr_rise(train_log, window)
+    if rise is not None and rise["rise_db"] > rising_db:
+        advice = {"time": "training stopped at its time budget far from convergence: give it "
+                          "more train.max_minutes",
+                  "steps": "training reached train.steps while still improving: raise "
+                           "train.steps (and train.max_minutes)"}.get(
+            stopped, "raise train.max_minutes or train.steps")
+        which = "held-out" if rise["column"] == "test_psnr" else "training"
+        found.append(_warning(
+            "not_converged", f"the {which} PSNR still rose {rise['rise_db']:.2f} dB over the last "
+            f"{window:.0%} of training ({rise['from_s']:.3g} s to {rise['to_s']:.3g} s, "
+            f"> {rising_db:g} dB): {advice}", stopped_by=stopped, threshold_db=rising_db,
+            **rise))
+    return found
+
+
+def needs_a_look(warnings: Sequence[dict]) -> str | None:
+    """The summary cell of a dataset's warnings: ``step: code`` each, ``; ``-separated."""
+    return "; ".join(f"{w['step']}: {w['code']}" for w in warnings) or None
+
+
 def summary_table(records: Sequence[DatasetRecord]) -> pd.DataFrame:
     """One row per dataset: status, failure, metric means, training and render figures. Columns
     of :data:`TABLE_COLUMNS` that no dataset has are left out."""
     rows = []
     for record in records:
         row = {"dataset": record.dataset, "source": record.source, "options": record.options,
-               "status": record.status, "failed_step": record.failed_step,
-               "error": record.error}
+               "status": record.status, "warnings": len(record.warnings),
+               "needs_a_look": needs_a_look(record.warnings),
+               "failed_step": record.failed_step, "error": record.error}
         summary = record.summary
         row["views"] = summary.views if summary else None
         means = summary.means if summary else {}
@@ -174,10 +268,15 @@ def render_html(table: pd.DataFrame, records: Sequence[DatasetRecord],
         plots: file name -> PNG; strips: dataset -> PNG.
         generated: the time stamp shown on the page.
     """
-    rows = [{"css": "ok" if row["status"] == "ok" else "failed",
-             "cells": [None if not isinstance(v, str) and pd.isna(v) else v
-                       for v in row.tolist()]}
-            for _, row in table.iterrows()]
+    by_name = {record.dataset: record for record in records}
+    rows = []
+    for _, row in table.iterrows():
+        record = by_name.get(row["dataset"])
+        warnings = record.warnings if record is not None else []
+        rows.append({"css": "failed" if row["status"] != "ok" else "warn" if warnings else "ok",
+                     "warnings": warnings,
+                     "cells": [(column, None if not isinstance(v, str) and pd.isna(v) else v)
+                               for column, v in row.items()]})
     water_rows = []
     for record in records:
         truth = record.summary.truth if record.summary else None
@@ -190,4 +289,5 @@ def render_html(table: pd.DataFrame, records: Sequence[DatasetRecord],
     return _template().render(
         columns=list(table.columns), rows=rows, records=records,
         failures=[r for r in records if r.status != "ok"], water_rows=water_rows,
+        flagged=[r for r in records if r.warnings],
         plots=plots, strips=strips, generated=generated)

@@ -269,3 +269,60 @@ def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total
             f"length (--focal-px or --focal-mm with --sensor-width-mm), or remove images that "
             f"do not overlap the others"
             + (f". Unregistered: {listed}" if unregistered else ""))
+
+
+def unconfirmed_message(attempts: list[SfmAttempt], chosen: SfmAttempt, gate: QualityGate,
+                        clahe: bool = True, kept: bool = False) -> str:
+    """Why the model kept was not confirmed, and which options to try (sheet syntax).
+
+    Names the kept attempt's figures, each failed limit (registered share, mean reprojection
+    error) and the worst disagreements between attempts (camera centres as a share of the camera
+    extent, rotations in degrees), or that no independent model passed the gate to compare with.
+    ``clahe``: whether the matching copies were equalised (the advice is to try the other way);
+    ``kept``: the model is kept anyway (``poses.on_unconfirmed=warn``), else the step fails.
+    """
+    index = attempts.index(chosen) + 1 if chosen in attempts else 0
+    error = chosen.mean_reprojection_px
+    limit = gate.max_reprojection_px * gate.reprojection_scale
+    reasons = []
+    if chosen.registered_fraction < gate.min_registered_fraction:
+        reasons.append(f"only {chosen.registered_fraction:.0%} of the images registered "
+                       f"(poses.min_registered {gate.min_registered_fraction:g})")
+    if error is None or error > limit:
+        reasons.append(f"mean reprojection error {'n/a' if error is None else f'{error:.3g}'} "
+                       f"px above {limit:.3g} px (poses.max_reproj_px "
+                       f"{gate.max_reprojection_px:g} at SIFT's size)")
+    disagreements = sorted(
+        ((c.get("max_centre_deviation", np.inf), c.get("max_rotation_deviation_deg", np.inf),
+          c["with_attempt"], attempts.index(a) + 1, c)
+         for a in attempts for c in a.comparisons
+         if not gate.agree(c if "max_centre_deviation" in c else None)),
+        key=lambda item: (not np.isfinite(item[0]), -item[0], -item[1]))
+    for _, _, first, second, comparison in disagreements[:3]:
+        reasons.append(f"attempts {first} and {second} disagree on the poses: "
+                       + describe_agreement(comparison if "max_centre_deviation" in comparison
+                                            else None))
+    if disagreements:
+        reasons[-1] += (f" (limits: poses.max_disagreement {gate.max_disagreement:g} of the "
+                        f"extent, poses.max_rotation_disagreement_deg "
+                        f"{gate.max_rotation_disagreement_deg:g})")
+    if not disagreements and not reasons:
+        reasons.append("no independent model (the other mapper or matcher) passed the gate to "
+                       "confirm it")
+    tried = {(a.settings.get("matcher"), a.settings.get("mapper")) for a in attempts}
+    advice = [f"poses.matcher={m}" for m in MATCHERS if m not in {t[0] for t in tried}]
+    advice += [f"poses.mapper={m}" for m in MAPPERS if m not in {t[1] for t in tried}]
+    if {t[0] for t in tried} == set(MATCHERS):
+        advice.append("a larger poses.overlap")
+    advice += ["a larger poses.max_image_size (-1: full size)",
+               f"poses.clahe={'false' if clahe else 'true'}", "more poses.max_features",
+               "a known focal length (poses.focal_px)"]
+    ending = ("kept because poses.on_unconfirmed=warn: the model is trained on cameras that "
+              "may be wrong" if kept else
+              "or keep it with poses.on_unconfirmed=warn (the report then shows this)")
+    return (f"the camera model was not confirmed: the model kept (attempt {index} of "
+            f"{len(attempts)}, {chosen.settings.get('matcher')} matching + "
+            f"{chosen.settings.get('mapper')} mapping: {chosen.registered}/{chosen.total} "
+            f"registered) is doubtful: {'; '.join(reasons)}. Repeated texture (tiles, sand "
+            f"ripples) or too little overlap can give a wrong model that looks consistent. Try "
+            f"{', '.join(advice)}; {ending}")

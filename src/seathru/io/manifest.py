@@ -26,6 +26,7 @@ from seathru.io.contract import check_contract
 from seathru.io.jsonfile import read_json
 from seathru.io.image_folder import RejectedFile
 from seathru.io.images import list_images
+from seathru.io.warnings import StepWarning, step_warning
 from seathru.radiometry.linearise import MATCHING_TARGET_MEDIAN
 
 FORMAT = "seathru-ingest/1"
@@ -73,7 +74,28 @@ class ManifestImage(TypedDict):
     warnings: list[str]
 
 
-class ManifestInput(TypedDict):
+class MissingFrame(TypedDict):
+    name: str                   # the view name the frame would have had
+    file: str                   # the file the dataset lists
+
+
+class LayoutRecord(TypedDict):
+    """How the images of a posed dataset were found (``seathru.io.dataset_readers``)."""
+
+    layout: str                 # llff | colmap | nerfstudio
+    root: str                   # the dataset folder
+    images: str                 # the image folder used, relative to root
+    reason: str                 # why: auto's choice or the ingest.images setting
+    kind: str | None            # linear where the layout says so (images_wb), else None
+    files: int                  # image files found
+    missing: list[MissingFrame]  # listed by the dataset, not there (skipped)
+
+
+class _ManifestInputOptional(TypedDict, total=False):
+    layout: LayoutRecord | None  # posed layouts (None otherwise; absent in older manifests)
+
+
+class ManifestInput(_ManifestInputOptional):
     folder: str
     given: str
     subdir: str | None
@@ -153,7 +175,8 @@ def _floats(values: Any) -> list[float] | None:
 def build_manifest(settings: Any, *, folder: Path, given: Path, subdir: str | None,
                    detection: dict[str, Any], decoded: Sequence[Any], finished: Sequence[Any],
                    transform: Any, rejected: list[RejectedFile], downscale: Sequence[int],
-                   stats_pixels_per_image: int, workers: int) -> IngestManifest:
+                   stats_pixels_per_image: int, workers: int,
+                   layout: LayoutRecord | None = None) -> IngestManifest:
     """The manifest of one ingest run.
 
     Args:
@@ -163,6 +186,7 @@ def build_manifest(settings: Any, *, folder: Path, given: Path, subdir: str | No
         decoded, finished: per image, ``seathru.io.decode_pool.Decoded`` and ``Finished``.
         transform: the ``seathru.radiometry.dataset_transform.DatasetTransform``.
         rejected, downscale, stats_pixels_per_image, workers: as used.
+        layout: how a posed dataset's images were found (``LayoutImages.record()``).
     """
     values = transform.exposure_values
     images: list[ManifestImage] = []
@@ -198,7 +222,7 @@ def build_manifest(settings: Any, *, folder: Path, given: Path, subdir: str | No
     return {
         "format": FORMAT,
         "input": {"folder": str(folder.resolve()), "given": str(given), "subdir": subdir,
-                  **detection},
+                  **detection, "layout": layout},
         "settings": {
             "kind": settings.kind, "colour": settings.colour, "wb": settings.wb,
             "wb_percentile": settings.wb_percentile, "demosaic": settings.demosaic,
@@ -231,6 +255,54 @@ def build_manifest(settings: Any, *, folder: Path, given: Path, subdir: str | No
         "images": images,
         "rejected": rejected,
     }
+
+
+def ingest_warnings(manifest: IngestManifest, clipped_share: float) -> list[StepWarning]:
+    """What the ingest step's user should look at, from its manifest: rejected files, frames the
+    dataset lists that are missing, images whose clipped (invalid) share exceeds
+    ``clipped_share``, the per-image warnings of the decoding that not every image has (those
+    describe the dataset, e.g. no EXIF at all: the manifest says so) and the dataset warnings."""
+    found: list[StepWarning] = []
+    rejected = manifest["rejected"]
+    if rejected:
+        found.append(step_warning(
+            "ingest", "rejected_images",
+            f"{len(rejected)} file(s) rejected and left out: " + "; ".join(
+                f"{r['file']} ({r['reason']})" for r in rejected[:5])
+            + (" ..." if len(rejected) > 5 else ""), rejected=rejected))
+    layout = manifest["input"].get("layout") or {}
+    missing = layout.get("missing") or []
+    if missing:
+        found.append(step_warning(
+            "ingest", "missing_frames",
+            f"{len(missing)} frame(s) the {layout['layout']} dataset lists have no image file "
+            f"and are skipped: " + ", ".join(m["name"] for m in missing[:10])
+            + (" ..." if len(missing) > 10 else ""), missing=missing))
+    clipped = {image["name"]: image["clipped_fraction"] for image in manifest["images"]
+               if image["clipped_fraction"] > clipped_share}
+    if clipped:
+        worst = max(clipped, key=clipped.get)
+        found.append(step_warning(
+            "ingest", "clipped_pixels",
+            f"{len(clipped)} of {len(manifest['images'])} image(s) have more than "
+            f"{clipped_share:.0%} clipped pixels (worst {worst}: {clipped[worst]:.1%}); they "
+            f"are masked out of training, so what only they show is not learnt; lower the "
+            f"exposure or drop them (threshold: ingest.warn_clipped_share)",
+            images=clipped, threshold=clipped_share))
+    # a condition every image shares (no EXIF at all) describes the dataset, not an image
+    common = set.intersection(*(set(image["warnings"]) for image in manifest["images"])) \
+        if manifest["images"] else set()
+    per_image = {image["name"]: [w for w in image["warnings"] if w not in common]
+                 for image in manifest["images"]}
+    per_image = {name: warnings for name, warnings in per_image.items() if warnings}
+    if per_image:
+        first = next(iter(per_image))
+        found.append(step_warning(
+            "ingest", "image_warnings", f"{len(per_image)} image(s) decoded with a warning "
+            f"(first, {first}: {per_image[first][0]})", images=per_image))
+    for text in manifest["warnings"]:
+        found.append(step_warning("ingest", "dataset_warning", str(text)))
+    return found
 
 
 def write_manifest(path: str | Path, manifest: IngestManifest) -> None:
@@ -293,3 +365,10 @@ class IngestFolder:
         self.matching_masks = _by_stem(self.root / "masks")  # full size, like matching/
         manifest = self.root / "manifest.json"
         self.manifest = read_manifest(manifest, strict=False) if manifest.exists() else None
+
+    @property
+    def layout(self) -> LayoutRecord | None:
+        """How a posed dataset's images were found (the manifest's ``input.layout``), or None."""
+        manifest = self.manifest if isinstance(self.manifest, dict) else {}
+        layout = (manifest.get("input") or {}).get("layout")
+        return layout if isinstance(layout, dict) else None

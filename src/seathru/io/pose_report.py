@@ -15,6 +15,7 @@ from typing import Any, TypedDict, Union
 from seathru.io.atomic import write_json
 from seathru.io.contract import check_contract
 from seathru.io.jsonfile import read_json
+from seathru.io.warnings import StepWarning, step_warning
 
 FORMAT = "seathru-poses-report/1"
 _HINT = "run the 'poses' step"
@@ -56,7 +57,14 @@ class AttemptRecord(TypedDict):
     note: str | None
 
 
-class ColmapDetails(TypedDict):
+class _ColmapDetailsOptional(TypedDict, total=False):
+    """Keys reports written before ``poses.on_unconfirmed`` existed do not have."""
+
+    gate_message: str | None     # why the model kept is doubtful (None: confirmed)
+    on_unconfirmed: str          # fail | warn, as used
+
+
+class ColmapDetails(_ColmapDetailsOptional):
     clahe: ClaheRecord
     initial_focal_px: float | None
     initial_focal_source: str
@@ -137,3 +145,40 @@ def read_pose_report(path: str | Path) -> AnyPoseReport:
     data = read_json(path, hint=_HINT)
     check_contract(data, _contract(data), path, FORMAT, _HINT)
     return data
+
+
+def pose_warnings(report: AnyPoseReport, layout: dict | None = None) -> list[StepWarning]:
+    """What the poses step's user should look at, from its report: an unconfirmed camera model
+    (kept with ``poses.on_unconfirmed=warn``), images COLMAP did not register, posed frames
+    without an image (except those the ingest step already named missing in its ``layout``
+    record) and images without a pose."""
+    found: list[StepWarning] = []
+    if report.get("gate_passed") is False:
+        found.append(step_warning(
+            "poses", "unconfirmed_poses", report.get("gate_message") or
+            "the camera model did not pass the quality gate; kept: the model is trained on "
+            "cameras that may be wrong",
+            attempt=report.get("chosen_attempt"), registered=report.get("registered"),
+            mean_reprojection_px=report.get("mean_reprojection_px"),
+            comparisons=[c for a in report.get("attempts", []) for c in a.get("comparisons", [])]))
+    unregistered = report.get("unregistered") or []
+    if unregistered:
+        found.append(step_warning(
+            "poses", "unregistered_images", f"{len(unregistered)} of {report.get('total')} "
+            f"images were not registered by COLMAP and are left out: "
+            + ", ".join(unregistered[:10]) + (" ..." if len(unregistered) > 10 else ""),
+            images=unregistered))
+    named = {m["name"] for m in ((layout or {}).get("missing") or [])}
+    without_image = [n for n in report["posed_without_linear_image"] if n not in named]
+    if without_image:
+        found.append(step_warning(
+            "poses", "posed_without_image", f"{len(without_image)} posed frame(s) have no "
+            f"ingested image and are left out: " + ", ".join(without_image[:10])
+            + (" ..." if len(without_image) > 10 else ""), frames=without_image))
+    without_pose = report["linear_images_without_pose"]
+    if without_pose:
+        found.append(step_warning(
+            "poses", "images_without_pose", f"{len(without_pose)} image(s) have no pose in "
+            f"the source and are left out: " + ", ".join(without_pose[:10])
+            + (" ..." if len(without_pose) > 10 else ""), images=without_pose))
+    return found

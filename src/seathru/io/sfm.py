@@ -28,7 +28,7 @@ from seathru.geometry.poses import c2w_from_cam_from_world
 from seathru.geometry.quality import (MAPPERS, MATCHERS, QualityGate, SfmAttempt, SfmRun,
                                       SfmSettings, confirmed_run, failure_message,
                                       plan_attempts, pose_agreement, reprojection_scale,
-                                      unconfirmed_run)
+                                      unconfirmed_message, unconfirmed_run)
 from seathru.io.colmap import model_images
 from seathru.io.dataset_readers import PosedDataset, PosedView
 from seathru.io.manifest import IngestFolder
@@ -234,10 +234,10 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
 
     Without ``cross_check`` the first model that passes the gate is kept (after retrying with
     another seed, then the alternatives of ``seathru.geometry.quality.plan_attempts``). With
-    it, a model must also be confirmed by an independent model (other mapper or other matcher) agreeing with its poses:
-    a self-consistent model (every image, low reprojection error) can still be wrong when
-    repeated texture produces consistent false matches, and both mappers fail that way at
-    times. Models built on the user's matcher are the candidates (for ordered dive sets the
+    it, a model must also be confirmed by an independent model (other mapper or other matcher)
+    agreeing with its poses: a self-consistent model (every image, low reprojection error) can
+    still be wrong when repeated texture produces consistent false matches, and both mappers
+    fail that way at times. Models built on the user's matcher are the candidates (for ordered dive sets the
     sequential matches hold fewer false pairs); the other matcher's models serve as witnesses,
     and become candidates only when no model on the user's matcher passes the gate. Among
     confirmed candidates the one tried first wins; when no candidate is confirmed, the one with
@@ -310,16 +310,19 @@ def prepare_matching_images(ingest: IngestFolder, names: list[str], image_dir: P
 
 def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: QualityGate,
                  focal: FocalPrior, clahe: bool = True, clahe_clip: float = 2.0,
-                 clahe_tiles: int = 8, retry: bool = True, cross_check: bool = True
-                 ) -> tuple[PosedDataset, ColmapDetails]:
+                 clahe_tiles: int = 8, retry: bool = True, cross_check: bool = True,
+                 on_unconfirmed: str = "fail") -> tuple[PosedDataset, ColmapDetails]:
     """Poses of the ingest matching images by COLMAP; the model kept is written to
     ``out/sparse`` (a work folder ``out/_colmap_work`` is removed again).
 
     ``settings.focal_px`` and ``gate.reprojection_scale`` are set here from the images' size.
+    A model kept without passing the whole gate (not confirmed) fails with ``on_unconfirmed``
+    ``fail``; with ``warn`` it is returned, ``gate_message`` saying why it is doubtful.
 
     Raises:
-        PipelineError: too few images, or no model registers ``gate.min_registered_fraction``
-            of them (the message lists every attempt and what to try).
+        PipelineError: too few images, no model registers ``gate.min_registered_fraction`` of
+            them (the message lists every attempt and what to try), or the model kept is not
+            confirmed and ``on_unconfirmed`` is ``fail`` (the message names the disagreement).
     """
     if not ingest.matching:
         raise PipelineError(f"{ingest.root / 'matching'}: no 8-bit matching images; run the "
@@ -355,11 +358,13 @@ def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: Q
     chosen = result.chosen
     if chosen is None or chosen.registered_fraction < gate.min_registered_fraction:
         raise PipelineError(failure_message(result.attempts, chosen, len(names), gate))
+    gate_message = None
     if not chosen.passed:
-        log.warning("the best COLMAP model (%d/%d registered, mean reprojection error %s px) "
-                    "did not pass the quality gate (%s); continuing with it", chosen.registered,
-                    chosen.total, chosen.mean_reprojection_px, chosen.note or
-                    f"--max-reproj-px {gate.max_reprojection_px}")
+        gate_message = unconfirmed_message(result.attempts, chosen, gate, clahe,
+                                           kept=on_unconfirmed == "warn")
+        if on_unconfirmed == "fail":
+            raise PipelineError(gate_message)
+        log.info("keeping the unconfirmed model (poses.on_unconfirmed=warn)")
     unregistered = [Path(name).stem for name in chosen.unregistered]
     if unregistered:
         log.warning("%d of %d images not registered (left out): %s", len(unregistered),
@@ -374,7 +379,8 @@ def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: Q
         "initial_focal_px": focal_px, "initial_focal_source": focal_source,
         "extraction_masks": any_mask,
         "global_mapping_available": global_mapping_available(),
-        "gate": asdict(gate), "gate_passed": chosen.passed,
+        "gate": asdict(gate), "gate_passed": chosen.passed, "gate_message": gate_message,
+        "on_unconfirmed": on_unconfirmed,
         "attempts": [a.to_dict() for a in result.attempts],
         "chosen_attempt": result.attempts.index(chosen) + 1,  # attempts count from 1
         "registered": chosen.registered, "total": len(names),

@@ -1,34 +1,29 @@
 """Decode a dataset's photos (RAW, linear 16-bit or sRGB) to linear images on one exposure scale.
 
-Reads one folder (``--input``, optionally ``--subdir``, e.g. ``images_wb`` of a SeaThru-NeRF
-release) and writes, in ``--out`` (replaced atomically, never half-written):
+Reads one folder (``--input``, optionally ``--subdir`` or ``--images``), or with ``--layout
+llff|colmap|nerfstudio`` the images a posed dataset holds in its own layout, missing ones skipped
+(``seathru.io.dataset_readers.layout_images``). Writes, in ``--out`` (atomically):
 
   linear/<stem>.tiff      float32 linear RGB after exposure normalisation and white balance
   linear_<N>/<stem>.tiff  the same, area-averaged down by N (LLFF images_N), per --downscale
   masks/<stem>.png        validity mask (255 valid; clipped pixels dilated), masks_<N>/ likewise
   matching/<stem>.png     8-bit sRGB-encoded copy for feature matching, one global exposure
   manifest.json           settings, dataset gains, per-image metadata, rejected files
+  warnings.json           rejected files, missing frames, clipped images (seathru.io.warnings)
 
-Kinds: ``raw`` (anything LibRaw decodes; demosaiced only, by default in the camera's raw colour
-space with unit white balance, as SeaThru-NeRF used), ``linear`` (16-bit/float PNG or TIFF used
-as stored), ``srgb`` (8-bit JPEG/PNG/TIFF, inverse sRGB transfer), ``auto`` (by extension and bit
-depth; when kinds are mixed, e.g. RAW+JPEG pairs, raw wins over linear over srgb and the other
-files are listed as rejected).
+Kinds: ``raw`` (anything LibRaw decodes, demosaiced only, in the camera's raw colour space by
+default, as SeaThru-NeRF), ``linear`` (16-bit/float PNG or TIFF as stored; also the layouts'
+images_wb), ``srgb`` (8-bit JPEG/PNG/TIFF, inverse sRGB), ``auto`` (by extension and bit depth;
+of mixed kinds raw wins over linear over srgb, the others are rejected).
 
-Exposure: every image is scaled by k_i = median(E) / E_i with E = t * ISO / N^2 from EXIF (a
-field no image has is left out; an image missing a field others have keeps k = 1, with a
-warning). White balance (--wb): none; camera = the dataset median of the as-shot multipliers
-(one set of gains for all views); percentile = SeaThru-NeRF's recipe, each channel divided by its
-99.8th percentile over all images, estimated from a regular grid of at most --stats-pixels pixels
-per image so memory stays bounded. With --colour srgb, RAW images are converted with LibRaw's
-camera-to-sRGB matrix after the camera white balance (the matrix expects white-balanced input),
-and a percentile white balance is applied after the matrix.
+Exposure and white balance (``seathru.radiometry.dataset_transform``): every image is scaled by
+k_i = median(E) / E_i, E = t * ISO / N^2 from EXIF (missing fields: k = 1, with a warning);
+--wb none, camera (dataset median of the as-shot gains) or percentile (SeaThru-NeRF's recipe:
+each channel / its 99.8th percentile, from at most --stats-pixels pixels per image).
 
 Masks: a pixel is invalid where any channel is clipped (RAW: a CFA sample at or above
---saturation-threshold x the white level, or at the ADC floor 0, found on the raw grid; encoded
-files: the top code or 0), grown by --mask-dilation pixels for demosaic/JPEG spread; resized
-masks keep a pixel valid only if every pixel under it is. The percentile white balance uses all
-pixels, clipped ones included, as the SeaThru-NeRF recipe does.
+--saturation-threshold x the white level, or 0; encoded files: the top code or 0), grown by
+--mask-dilation pixels; a resized mask keeps a pixel valid only if every pixel under it is.
 
 Unusable files (unsupported, stripped, truncated, constant output) are rejected with a reason and
 the rest continue; the step fails if fewer than --min-images remain. Images are decoded in
@@ -49,16 +44,17 @@ from seathru.errors import PipelineError
 from seathru.io.atomic import atomic_dir
 from seathru.io.decode_pool import (CRASHED, DecodeTask, FinishTask, WorkerPool, decode_all,
                                     finish_one)
-from seathru.io.image_folder import resolve_input, select_files
-from seathru.io.manifest import build_manifest, write_manifest
+from seathru.io.dataset_readers import LAYOUTS
+from seathru.io.image_folder import find_inputs
+from seathru.io.manifest import build_manifest, ingest_warnings, write_manifest
 from seathru.io.raw import Demosaic, RawSettings
+from seathru.io.warnings import write_warnings
 from seathru.radiometry.dataset_transform import dataset_transform
 from seathru.settings import setting
 
 LOG = logging.getLogger(__name__)
 
-#: Memory bound for dataset statistics (percentile WB, matching exposure), in pixels overall.
-STATS_TOTAL_PIXELS = 8_000_000
+STATS_TOTAL_PIXELS = 8_000_000  #: pixels of all images sampled for the dataset statistics
 
 
 @dataclass
@@ -90,6 +86,11 @@ class Settings:
     min_images: int = setting(3, help="fail if fewer usable images remain")
     stats_pixels: int = setting(
         100_000, help="pixels sampled per image for dataset statistics")
+    images: str = setting(
+        "auto", help="image folder in the dataset's path: auto (llff prefers images_wb; see "
+                     "the sheet's sources) or a name (images_wb, images, images_4, ...)")
+    warn_clipped_share: float = setting(
+        0.1, help="warn about images with more than this share of clipped pixels")
 
     def validate(self) -> None:
         if not 0.0 < self.wb_percentile <= 100.0:
@@ -101,16 +102,19 @@ class Settings:
             raise ValueError(f"--downscale {self.downscale}: factors must be integers >= 1")
         if self.min_images < 1:
             raise ValueError(f"--min-images {self.min_images}: must be at least 1")
-        if self.max_size < 0 or self.matching_max_size < 0 or self.stats_pixels < 1:
-            raise ValueError("--max-size / --matching-max-size must be >= 0, --stats-pixels >= 1")
+        if min(self.max_size, self.matching_max_size, self.stats_pixels - 1) < 0 or \
+                not 0.0 <= self.warn_clipped_share <= 1.0:
+            raise ValueError("--max-size / --matching-max-size must be >= 0, --stats-pixels >= 1,"
+                             " --warn-clipped-share in [0, 1]")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     # Set by the workflow (workflow/rules/ingest.smk), not configuration.
     parser.add_argument("--input", required=True, type=Path, help="folder holding the images")
-    parser.add_argument("--subdir", default=None,
-                        help="subfolder of --input with the images (e.g. images_wb; matched "
-                             "case-insensitively)")
+    parser.add_argument("--subdir", default=None, help="subfolder of --input with the images "
+                        "(e.g. images_wb; matched case-insensitively)")
+    parser.add_argument("--layout", choices=LAYOUTS, default=None, help="--input is a posed "
+                        "dataset in this layout: decode the images it holds (folder: --images)")
     parser.add_argument("--out", required=True, type=Path,
                         help="output folder for this dataset (replaced atomically)")
     parser.add_argument("--workers", type=int, default=0,
@@ -120,18 +124,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> None:
     cfg: Settings = settings.from_namespace(Settings, args)
-    folder = resolve_input(Path(args.input), args.subdir)
-    selected, rejected, detection = select_files(folder, cfg.kind)
-    workers = args.workers or min(os.cpu_count() or 1, 8)
-    workers = max(1, min(workers, len(selected)))
+    found = find_inputs(Path(args.input), args.subdir, args.layout, cfg.images, cfg.kind)
+    folder, selected, rejected = found.folder, found.selected, found.rejected
+    workers = max(1, min(args.workers or min(os.cpu_count() or 1, 8), len(selected)))
     sample_pixels = min(cfg.stats_pixels, max(4096, STATS_TOTAL_PIXELS // max(1, len(selected))))
-    raw_settings = RawSettings(demosaic=cfg.demosaic, half_size=cfg.half_size,
-                               saturation_threshold=cfg.saturation_threshold)
+    raw_settings = RawSettings(cfg.demosaic, cfg.half_size, cfg.saturation_threshold)
     downscale = tuple(sorted(set(cfg.downscale) - {1}))
-    LOG.info("ingest %s: %s; %d images, %d workers", folder, detection["note"], len(selected),
-             workers)
-    for item in rejected:
-        LOG.warning("rejected %s: %s", item["file"], item["reason"])
+    LOG.info("ingest %s: %s%s; %d images, %d workers", folder, found.detection["note"],
+             f"; {found.reason}" if found.reason else "", len(selected), workers)
 
     out = Path(args.out)
     with atomic_dir(out) as work, WorkerPool(workers) as pool:
@@ -145,9 +145,9 @@ def run(args: argparse.Namespace) -> None:
                 f"{folder}: only {len(decoded)} usable image(s) of {len(selected)} "
                 f"(--min-images {cfg.min_images}); {len(rejected)} rejected: {listing}")
         try:
-            transform = dataset_transform([d.statistics() for d in decoded], detection["kind"],
-                                          cfg.wb, cfg.wb_percentile, cfg.colour,
-                                          cfg.exposure_normalise)
+            transform = dataset_transform([d.statistics() for d in decoded],
+                                          found.detection["kind"], cfg.wb, cfg.wb_percentile,
+                                          cfg.colour, cfg.exposure_normalise)
         except ValueError as exc:
             raise PipelineError(f"--wb percentile: {exc}; use --wb none or camera") from exc
         for d, warnings in zip(decoded, transform.image_warnings):
@@ -159,9 +159,12 @@ def run(args: argparse.Namespace) -> None:
         if any(f is CRASHED for f in finished):
             raise PipelineError(f"{out}: a worker process crashed while writing outputs "
                                 "(out of memory?); rerun with fewer --workers")
-        write_manifest(work / "manifest.json", build_manifest(
-            cfg, folder=folder, given=args.input, subdir=args.subdir, detection=detection,
+        manifest = build_manifest(
+            cfg, folder=folder, given=args.input, subdir=found.subdir, detection=found.detection,
             decoded=decoded, finished=finished, transform=transform, rejected=rejected,
-            downscale=downscale, stats_pixels_per_image=sample_pixels, workers=workers))
-    LOG.info("ingest %s: %d images written to %s, %d rejected", folder, len(decoded), out,
-             len(rejected))
+            downscale=downscale, stats_pixels_per_image=sample_pixels, workers=workers,
+            layout=found.layout)
+        write_manifest(work / "manifest.json", manifest)
+        write_warnings(work / "warnings.json", ingest_warnings(manifest, cfg.warn_clipped_share),
+                       LOG)
+    LOG.info("ingest: %d images written to %s, %d rejected", len(decoded), out, len(rejected))

@@ -10,15 +10,18 @@ other mapper (incremental / global) or the other matcher (sequential / exhaustiv
 the poses after a similarity alignment: repeated texture can give a wrong model with every
 image registered and a low reprojection error. Failing models are followed by retries (another
 seed, the other mapper, the other matcher). Fewer registered images than ``--min-registered``
-is an error; a model that registers enough but fails the rest of the gate is kept with a warning
-and ``gate_passed: false`` in the report. ``--source llff|colmap-model|nerfstudio`` reads poses
-that already exist in ``--source-dir`` instead.
+is an error; a model that registers enough but is not confirmed (fails the rest of the gate)
+fails the step with what disagreed and what to try (``--on-unconfirmed fail``), or is kept with
+``gate_passed: false`` in the report and a warning (``--on-unconfirmed warn``).
+``--source llff|colmap-model|nerfstudio`` reads poses that already exist in ``--source-dir``
+instead (LLFF rows named by the image folder ingest read, from its manifest).
 
 Outputs (``--out``, swapped in only when complete):
   cameras.json       pinhole cameras (seathru-cameras/1), OpenCV c2w, normalised units
   images/<stem>.tiff linear float32 images, undistorted to those pinhole cameras
   masks/<stem>.png   validity masks, warped the same way (255 = valid)
   report.json        what was tried and measured (every COLMAP attempt, unregistered images)
+  warnings.json      unconfirmed model, unregistered images, frames left out (seathru.io.warnings)
   sparse/            the COLMAP model used (colmap source only)
 
 Normalisation: normalised = (source - centre) * scale puts every camera's [near, far] frustum
@@ -41,8 +44,9 @@ from seathru.io.atomic import atomic_dir
 from seathru.io.dataset_readers import READERS, read_posed_dataset
 from seathru.io.manifest import IngestFolder
 from seathru.io.pose_outputs import write_pose_outputs
-from seathru.io.pose_report import FORMAT, write_pose_report
+from seathru.io.pose_report import FORMAT, pose_warnings, write_pose_report
 from seathru.io.sfm import colmap_poses
+from seathru.io.warnings import write_warnings
 from seathru.settings import setting
 
 log = logging.getLogger(__name__)
@@ -98,6 +102,9 @@ class Settings:
                    "fraction of the camera extent")
     max_rotation_disagreement_deg: float = setting(
         1.0, help="cross-check: largest camera rotation deviation, degrees")
+    on_unconfirmed: Literal["fail", "warn"] = setting(
+        "fail", help="a camera model the quality gate did not confirm: fail the dataset (saying "
+                     "what disagreed and what to try) or warn (train on it, the report shows it)")
 
     def validate(self) -> None:
         if not 0.0 < self.min_registered <= 1.0:
@@ -136,9 +143,13 @@ def run(args: argparse.Namespace) -> None:
             focal = FocalPrior(cfg.focal_px, cfg.focal_mm, cfg.sensor_width_mm, ingest.manifest)
             dataset, details = colmap_poses(ingest, out, sfm, gate, focal, cfg.clahe,
                                             cfg.clahe_clip, cfg.clahe_tiles, cfg.retry,
-                                            cfg.cross_check)
+                                            cfg.cross_check, cfg.on_unconfirmed)
         else:
-            dataset = read_posed_dataset(args.source, args.source_dir, sorted(ingest.linear))
+            layout = ingest.layout or {}
+            folder = Path(layout["root"], layout["images"]) if layout.get("layout") == "llff" \
+                else None
+            dataset = read_posed_dataset(args.source, args.source_dir, sorted(ingest.linear),
+                                         image_folder=folder)
             details = {"reader_notes": dataset.notes}
         summary = write_pose_outputs(dataset, ingest, out, cfg.near, cfg.far, cfg.test_every,
                                      str(args.source_dir or ingest.root))
@@ -149,5 +160,6 @@ def run(args: argparse.Namespace) -> None:
                   "arguments": arguments, **details, **summary,
                   "seconds": round(time.perf_counter() - start, 2)}
         write_pose_report(out / "report.json", report)
+        write_warnings(out / "warnings.json", pose_warnings(report, ingest.layout), log)
     log.info("poses: %d frames written to %s in %.1f s", report["frames"], args.out,
              report["seconds"])

@@ -7,11 +7,17 @@ summary is listed as failed, with the stage and message of the last ``seathru <s
 line found in its logs (``LOGS/<dataset>/<step>.log``, the most recently written log that has
 one), or the last line of its newest log when none has such a line.
 
+Warnings ("needs a look"): every ``RESULTS/<dataset>/<step>/warnings.json`` the steps wrote,
+and those derived from the train step's ``selection.json``, ``train_log.csv`` and log (water
+model turned off; PSNR still rising by more than ``rising_psnr_db`` over the last
+``rising_window`` of training: ``seathru.eval.report.training_warnings``).
+
 Writes to ``--out``:
 
-- ``summary.csv``: one row per dataset (status, error, held-out PSNR / SSIM / LPIPS, truth
-  metrics of simulated datasets, training time, render speed, medium selection);
-- ``summary.html``: the same table, the plots and image strips inlined (self-contained);
+- ``summary.csv``: one row per dataset (status, warnings and their codes, error, held-out PSNR /
+  SSIM / LPIPS, truth metrics of simulated datasets, training time, render speed, medium);
+- ``summary.html``: the same table (datasets with warnings marked), each warning in full, the
+  plots and image strips inlined (self-contained);
 - ``psnr_vs_time.png``: held-out PSNR during training against training time, per dataset;
 - ``speed_vs_error.png``: render frames per second and training time against held-out PSNR;
 - ``water_parameters.png``: fitted water parameters per dataset and channel, truth markers;
@@ -33,11 +39,13 @@ from seathru import settings
 from seathru.errors import PipelineError
 from seathru.eval import report_plots as plots
 from seathru.eval.report import (DatasetRecord, StepLog, diagnose_failure, render_html,
-                                 summary_table)
+                                 stopped_by, summary_table, training_warnings)
 from seathru.io.atomic import atomic_dir, write_bytes, write_text
 from seathru.io.evaluation import read_metrics, read_summary, read_train_log
 from seathru.io.images import read_image
+from seathru.io.jsonfile import read_json
 from seathru.io.sheet import read_sheet
+from seathru.io.warnings import read_dataset_warnings
 from seathru.io.water import read_water
 from seathru.settings import setting
 from seathru.steps import STEP_ORDER
@@ -51,10 +59,16 @@ class Settings:
 
     strip_views: int = setting(3, help="held-out views per dataset in the image strips")
     strip_height: int = setting(160, help="height in pixels of one image in the strips")
+    rising_psnr_db: float = setting(
+        1.0, help="warn that training is far from converged when its PSNR rose more than this "
+                  "(dB) over the last rising_window of its time")
+    rising_window: float = setting(0.2, help="share of the training time rising_psnr_db is over")
 
     def validate(self) -> None:
         if self.strip_views < 1 or self.strip_height < 16:
             raise ValueError("strip_views must be >= 1 and strip_height >= 16")
+        if not 0.0 < self.rising_window <= 1.0:
+            raise ValueError("rising_window must be in (0, 1]")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -75,7 +89,7 @@ def run(args: argparse.Namespace) -> None:
 
     matplotlib.use("Agg")
     sheet = read_sheet(args.datasets)
-    records = [_collect(row, args.results, args.logs) for _, row in sheet.iterrows()]
+    records = [_collect(row, args.results, args.logs, cfg) for _, row in sheet.iterrows()]
     table = summary_table(records)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
@@ -98,11 +112,12 @@ def run(args: argparse.Namespace) -> None:
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     write_text(out / "summary.html", render_html(table, records, pngs, strips, stamp))
     failed = [r.dataset for r in records if r.status != "ok"]
-    log.info("report: %d datasets, %d without results%s", len(records), len(failed),
-             f" ({', '.join(failed)})" if failed else "")
+    log.info("report: %d datasets, %d without results%s, %d with warnings", len(records),
+             len(failed), f" ({', '.join(failed)})" if failed else "",
+             sum(bool(r.warnings) for r in records))
 
 
-def _collect(row: pd.Series, results: Path, logs: Path | None) -> DatasetRecord:
+def _collect(row: pd.Series, results: Path, logs: Path | None, cfg: Settings) -> DatasetRecord:
     """What the report shows about one dataset of the sheet, read from its results."""
     dataset = str(row["dataset"]).strip()
     base = Path(results) / dataset
@@ -126,6 +141,14 @@ def _collect(row: pd.Series, results: Path, logs: Path | None) -> DatasetRecord:
             record.water = read_water(water_path).per_source_unit.as_dict()
         except PipelineError as exc:
             log.warning("%s", exc)
+    selection = (record.summary.medium_selection if record.summary else None) or read_json(
+        base / "train" / "selection.json", missing_ok=True)
+    train_log = [s for s in _step_logs(logs, dataset) if s.step == "train"]
+    record.warnings = read_dataset_warnings(base, STEP_ORDER) + training_warnings(
+        selection, record.train_log, stopped_by(train_log[0].lines) if train_log else None,
+        cfg.rising_psnr_db, cfg.rising_window)
+    record.warnings.sort(key=lambda w: STEP_ORDER.index(w["step"]) if w["step"] in STEP_ORDER
+                         else len(STEP_ORDER))
     return record
 
 
