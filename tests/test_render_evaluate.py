@@ -268,6 +268,15 @@ def test_evaluate_summary_collects_speed_training_and_selection(evaluated, fake)
     assert summary["lpips"].startswith("unavailable")
 
 
+def test_evaluate_by_default_runs_only_our_metrics_and_says_why_no_chart(evaluated, fake):
+    summary = evaluated["summary"]
+    assert summary["protocol"] is None
+    assert not (fake["root"] / "evaluate" / "nerfbaselines").exists()
+    # a hand-made camera file without an ingest output: no stored images to find a chart in
+    assert summary["colour_chart"]["source"] == "none"
+    assert "manifest.json" in summary["colour_chart"]["reason"]
+
+
 def test_evaluate_reports_missing_renders(tmp_path, fake, capsys):
     code = main(["evaluate", "--renders", str(tmp_path / "none"), "--cameras",
                  str(fake["poses"] / "cameras.json"), "--train-dir", str(fake["train"]),

@@ -117,6 +117,8 @@ class EvaluationSummary:
     water_fitted: dict | None = None    # the train step's water.json content
     medium_selection: dict | None = None
     truth: TruthSummary | None = None
+    protocol: dict | None = None        # NerfBaselines' protocol: means, views, folder
+    colour_chart: dict | None = None    # seathru.io.chart's measurement, or why there is none
 
 
 def lpips_network(state: Mapping | None, source: str | os.PathLike | None):
@@ -202,7 +204,8 @@ def render_speed(render_stats: dict | None) -> RenderSpeed:
 def build_summary(dataset: str, table: pd.DataFrame, *, lpips_status: str,
                   render_stats: dict | None = None, train_log: pd.DataFrame | None = None,
                   water: dict | None = None, selection: dict | None = None,
-                  truth: TruthSummary | None = None) -> EvaluationSummary:
+                  truth: TruthSummary | None = None, protocol: dict | None = None,
+                  colour_chart: dict | None = None) -> EvaluationSummary:
     """One dataset's summary from its metrics table and the other steps' records.
 
     Args:
@@ -210,8 +213,11 @@ def build_summary(dataset: str, table: pd.DataFrame, *, lpips_status: str,
         render_stats, water, selection: the content of the render step's
             ``render_stats.json`` and the train step's ``water.json`` and ``selection.json``.
         train_log: the train step's ``train_log.csv``.
+        protocol: ``seathru.io.nerfbaselines.evaluate_nerfbaselines``'s summary part.
+        colour_chart: ``seathru.io.chart.evaluate_colour_chart``'s result.
     """
     return EvaluationSummary(dataset=dataset, views=len(table), means=view_means(table),
                              lpips=lpips_status, render=render_speed(render_stats),
                              training=training_summary(train_log), water_fitted=water,
-                             medium_selection=selection, truth=truth)
+                             medium_selection=selection, truth=truth, protocol=protocol,
+                             colour_chart=colour_chart)

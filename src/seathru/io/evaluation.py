@@ -6,6 +6,8 @@
 - ``evaluate/metrics.csv``: one row per held-out view (:class:`seathru.eval.summary.ViewMetrics`),
   columns ``VIEW_COLUMNS`` then, for simulated datasets, ``TRUTH_COLUMNS``; ``lpips`` holds a
   number or ``unavailable``;
+- :func:`truth_evaluation`: the simulated datasets' comparison with the simulator's truth
+  (``seathru.eval.truth``), reading one view at a time;
 - inputs: the render step's held-out renders ``test/<view>/<name>.tiff``, the simulator's truth
   images ``truth/<kind>/<view>.tiff``, camera centres of a camera file, ``train/train_log.csv``
   (written by the train step) as a table, and LPIPS weights (torch state dicts on disk, never
@@ -25,13 +27,15 @@ import numpy as np
 import pandas as pd
 
 from seathru.errors import PipelineError
-from seathru.eval.summary import (VIEW_COLUMNS, EvaluationSummary, ViewMetrics,
+from seathru.eval import truth as truth_eval
+from seathru.eval.summary import (VIEW_COLUMNS, EvaluationSummary, TruthSummary, ViewMetrics,
                                   metrics_table)
 from seathru.io.atomic import write_json, write_text
-from seathru.io.cameras import CameraSet
+from seathru.io.cameras import CameraSet, read_cameras
 from seathru.io.images import read_image
 from seathru.io.jsonfile import json_safe, read_json
-from seathru.io.water import WaterReport
+from seathru.io.water import WaterReport, read_truth_water
+from seathru.radiometry.linearise import resize_area
 
 EVALUATION_FORMAT = "seathru-evaluation/1"
 
@@ -188,3 +192,48 @@ def read_lpips_weights(path: str | os.PathLike) -> dict | None:
         if isinstance(loaded, dict):
             state.update(loaded)
     return state
+
+
+# ----------------------------------------------------------------- against the simulator's truth
+
+def resized_like(image: np.ndarray, like: np.ndarray) -> np.ndarray:
+    """``image`` area-resized to ``like``'s size (renders may be downscaled)."""
+    return resize_area(image, (like.shape[1], like.shape[0]))
+
+
+def truth_evaluation(truth_dir: Path, renders: Path, cameras: CameraSet, rows: list[dict],
+                     water: WaterReport | None) -> TruthSummary:
+    """Add the truth columns to ``rows`` (one per held-out view, ``view`` keyed); return the
+    summary's truth part: colour gain, metric scale, water against the truth.
+
+    Raises:
+        PipelineError: the camera file and the simulation do not match (views without truth).
+    """
+    truth_dir, renders = Path(truth_dir), Path(renders)
+    truth_centres = camera_centres(read_cameras(truth_dir / "cameras.json"), source_units=True)
+    views = [row["view"] for row in rows]
+    missing = [view for view in views if view not in truth_centres]
+    if missing:
+        raise PipelineError(f"{truth_dir / 'cameras.json'}: no truth for held-out views "
+                            f"{missing[:3]}; the camera file and the simulation do not match")
+    scale = truth_eval.camera_metric_scale(camera_centres(cameras), truth_centres, cameras.scale)
+
+    def truth(kind: str, view: str, like: np.ndarray) -> np.ndarray:
+        return resized_like(read_truth_image(truth_dir, kind, view), like)
+
+    # one view in memory at a time
+    renders_full = ((view, read_render(renders, view, "full")) for view in views)
+    gain = truth_eval.pooled_gain((full, truth("water", view, full))
+                                  for view, full in renders_full)
+    for row in rows:
+        view = row["view"]
+        full = read_render(renders, view, "full")
+        row.update(truth_eval.view_truth_metrics(
+            full=full, restored=read_render(renders, view, "restored"),
+            depth=read_render(renders, view, "depth"), clean=truth("clean", view, full),
+            water=truth("water", view, full), truth_depth=truth("depth", view, full),
+            gain=gain, metres_per_unit=scale.scale))
+    fitted = None if water is None else water.normalised.as_dict()
+    comparison = truth_eval.compare_water(fitted, read_truth_water(truth_dir / "water.json")
+                                          .as_dict(), scale.scale, gain)
+    return truth_eval.truth_summary(gain, scale, comparison)

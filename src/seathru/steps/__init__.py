@@ -5,4 +5,4 @@ reads inputs, calls the core and writes outputs atomically. ``seathru.cli`` list
 that exist; a step that is not built yet is simply absent.
 """
 
-STEP_ORDER = ("simulate", "ingest", "poses", "train", "render", "evaluate", "report")
+STEP_ORDER = ("simulate", "ingest", "poses", "export", "train", "render", "evaluate", "report")

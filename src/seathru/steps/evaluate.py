@@ -1,15 +1,23 @@
-"""PSNR / SSIM on held-out views; against the truth for simulated datasets.
+"""PSNR / SSIM on held-out views; the community's protocol; colour charts; the simulator's truth.
 
 Per held-out (test split) view, the render step's ``test/<name>/full.tiff`` against the view's
-linear image from the camera file, 8-bit quantised as in the NeRF papers: PSNR, SSIM (linear,
-the official SeaThru-NeRF evaluation, and sRGB-encoded) and LPIPS when ``--lpips-weights`` points
-at weights on disk (else ``unavailable``; weights are never downloaded); see
-``seathru.eval.summary``. With ``--truth`` (a simulated dataset's ``simulate/truth``): restored
-renders against the clean truth after one colour gain per channel, depth in metres and fitted
-water against the truth; see ``seathru.eval.truth``.
+linear image from the camera file, 8-bit quantised (rounded) as in the NeRF papers: PSNR, SSIM
+(linear, the official SeaThru-NeRF evaluation, and sRGB-encoded) and LPIPS when
+``--lpips-weights`` points at weights on disk (else ``unavailable``; weights are never
+downloaded); see ``seathru.eval.summary``. These are on the pipeline's white-balanced,
+exposure-normalised images.
+
+``--protocol nerfbaselines`` adds NerfBaselines' default protocol for the SeaThru-NeRF dataset:
+predictions taken back to the stored images' encoding and compared with the stored images as
+they are on disk, uint8-truncated, written in NerfBaselines' layout to ``--out/nerfbaselines``
+(``seathru.io.nerfbaselines``). A colour chart (``--chart`` annotation, ``colour_chart.json`` in
+the dataset folder, else OpenCV's mcc detector) is measured on the photo, the ingest image and
+the restored render: CIEDE2000 and grey angular error (``seathru.io.chart``). With ``--truth``
+(a simulated dataset's ``simulate/truth``): restored renders against the clean truth, depth and
+water (``seathru.io.evaluation.truth_evaluation``).
 
 Writes ``metrics.csv`` (one row per held-out view) and ``summary.json`` (means, render speed,
-training time, fitted water, the medium selection) to ``--out``; see ``seathru.io.evaluation``.
+training time, fitted water, the medium selection, protocol and chart results) to ``--out``.
 """
 
 from __future__ import annotations
@@ -18,21 +26,22 @@ import argparse
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-
-import numpy as np
+from typing import Literal
 
 from seathru import settings
 from seathru.errors import PipelineError
-from seathru.eval import summary as dataset_summary, truth as truth_eval
-from seathru.eval.summary import TruthSummary
-from seathru.io.cameras import CameraSet, read_cameras
-from seathru.io.evaluation import (camera_centres, read_lpips_weights, read_render,
-                                   read_train_log, read_truth_image, write_metrics,
+from seathru.eval import summary as dataset_summary
+from seathru.io.cameras import CameraSet, Frame, read_cameras
+from seathru.io.chart import evaluate_colour_chart, find_annotation
+from seathru.io.evaluation import (read_lpips_weights, read_render, read_train_log,
+                                   resized_like, truth_evaluation, write_metrics,
                                    write_summary)
+from seathru.io.atomic import write_json
 from seathru.io.images import read_image
-from seathru.io.jsonfile import read_json
-from seathru.io.water import WaterReport, read_truth_water, read_water
-from seathru.radiometry.linearise import resize_area
+from seathru.io.jsonfile import json_safe, read_json
+from seathru.io.nerfbaselines import evaluate_nerfbaselines
+from seathru.io.stored_views import ingest_folder_of
+from seathru.io.water import read_water
 from seathru.settings import setting
 
 log = logging.getLogger(__name__)
@@ -48,6 +57,17 @@ class Settings:
                    "linear layers; absent: LPIPS 'unavailable'")
     dataset: str | None = setting(None, help="dataset id for the tables (automatic: the folder "
                                              "above the output folder)")
+    protocol: Literal["seathru", "nerfbaselines"] = setting(
+        "seathru", help="seathru: PSNR/SSIM on the pipeline's linear images (always computed); "
+                        "nerfbaselines: also NerfBaselines' protocol against the stored images "
+                        "(needs poses.test_every=8, full resolution)")
+    chart: Path | None = setting(
+        None, help="colour-chart annotation (JSON, seathru.io.chart); unset: colour_chart.json "
+                   "in the dataset folder, else OpenCV mcc detection")
+    chart_detect: bool = setting(
+        True, help="without an annotation, look for a ColorChecker with OpenCV's mcc detector")
+    chart_render: bool = setting(
+        True, help="render the chart's view with the trained model when it is not held out")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -57,7 +77,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cameras.json from the poses step (held-out views: split 'test')")
     parser.add_argument("--train-dir", required=True, type=Path,
                         help="output folder of the train step (water.json, train_log.csv, "
-                             "selection.json)")
+                             "selection.json, model.pt)")
     parser.add_argument("--truth", type=Path, default=None,
                         help="simulated datasets: the simulate step's truth/ folder")
     parser.add_argument("--out", required=True, type=Path, help="output folder")
@@ -88,7 +108,7 @@ def run(args: argparse.Namespace) -> None:
     rows = []
     for frame in views:
         full = read_render(args.renders, frame.name, "full")
-        target = _resized(read_image(cameras.image_path(frame)), full)
+        target = resized_like(read_image(cameras.image_path(frame)), full)
         rows.append(dataset_summary.view_metrics(dataset, frame.name, full, target, lpips_net))
         log.info("%s: PSNR %.2f dB, SSIM %.4f (linear)", frame.name, rows[-1]["psnr_linear"],
                  rows[-1]["ssim_linear"])
@@ -96,54 +116,52 @@ def run(args: argparse.Namespace) -> None:
     water = read_water(args.train_dir / "water.json", missing_ok=True)
     if water is None:
         log.warning("%s not found: water parameters not evaluated", args.train_dir / "water.json")
-    truth = None if args.truth is None else _against_truth(args.truth, args.renders, cameras,
-                                                           rows, water)
+    truth = None if args.truth is None else truth_evaluation(args.truth, args.renders, cameras,
+                                                             rows, water)
+    train_log = read_train_log(args.train_dir / "train_log.csv")
+    training = dataset_summary.training_summary(train_log)
+    protocol = None
+    if cfg.protocol == "nerfbaselines":
+        protocol = evaluate_nerfbaselines(
+            cameras, args.renders, out / "nerfbaselines", dataset, lpips_net,
+            None if training is None else {"steps": training.steps, "time_s": training.time_s})
+        log.info("%s (nerfbaselines protocol): PSNR %.2f dB, SSIM %.4f", dataset,
+                 protocol["means"]["psnr"], protocol["means"]["ssim"])
+    chart = _colour_chart(cfg, cameras, args)
     table = dataset_summary.metrics_table(rows)
     summary = dataset_summary.build_summary(
         dataset, table, lpips_status=lpips_status,
         render_stats=read_json(args.renders / "render_stats.json", missing_ok=True),
-        train_log=read_train_log(args.train_dir / "train_log.csv"),
-        water=None if water is None else water.to_dict(),
-        selection=read_json(args.train_dir / "selection.json", missing_ok=True), truth=truth)
+        train_log=train_log, water=None if water is None else water.to_dict(),
+        selection=read_json(args.train_dir / "selection.json", missing_ok=True), truth=truth,
+        protocol=protocol, colour_chart=chart)
     args.out.mkdir(parents=True, exist_ok=True)
     write_metrics(args.out / "metrics.csv", table)
     write_summary(args.out / "summary.json", summary)
+    if chart.get("source") != "none":
+        write_json(args.out / "colour_chart.json", json_safe(chart))
     log.info("%s: mean PSNR %.2f dB over %d views", dataset, table["psnr_linear"].mean(),
              len(table))
 
 
-def _resized(image: np.ndarray, like: np.ndarray) -> np.ndarray:
-    """``image`` area-resized to the render's size (renders may be downscaled)."""
-    return resize_area(image, (like.shape[1], like.shape[0]))
+def _colour_chart(cfg: Settings, cameras: CameraSet, args: argparse.Namespace) -> dict:
+    """The chart's measurement, or why there is none (no ingest manifest: a hand-made camera
+    file)."""
+    ingest = ingest_folder_of(cameras)
+    if not (ingest / "manifest.json").is_file():
+        return {"source": "none", "reason": f"{ingest / 'manifest.json'} not found"}
+    annotation = find_annotation(cfg.chart, ingest)
+    model = args.train_dir / "model.pt"
 
+    def render_restored(frame: Frame):
+        from seathru.io.model import load_model
+        from seathru.nerf.device import select_device
+        from seathru.nerf.inference import render_frame
 
-def _against_truth(truth_dir: Path, renders: Path, cameras: CameraSet, rows: list[dict],
-                   water: WaterReport | None) -> TruthSummary:
-    """Adds the truth columns to ``rows`` (one per held-out view); the summary's truth part."""
-    truth_centres = camera_centres(read_cameras(truth_dir / "cameras.json"), source_units=True)
-    views = [row["view"] for row in rows]
-    missing = [view for view in views if view not in truth_centres]
-    if missing:
-        raise PipelineError(f"{truth_dir / 'cameras.json'}: no truth for held-out views "
-                            f"{missing[:3]}; the camera file and the simulation do not match")
-    scale = truth_eval.camera_metric_scale(camera_centres(cameras), truth_centres, cameras.scale)
+        log.info("colour chart: rendering %s (not a held-out view)", frame.name)
+        return render_frame(load_model(model, select_device("auto", args.threads)),
+                            frame)["restored"]
 
-    def truth(kind: str, view: str, like: np.ndarray) -> np.ndarray:
-        return _resized(read_truth_image(truth_dir, kind, view), like)
-
-    # one view in memory at a time
-    renders_full = ((view, read_render(renders, view, "full")) for view in views)
-    gain = truth_eval.pooled_gain((full, truth("water", view, full))
-                                  for view, full in renders_full)
-    for row in rows:
-        view = row["view"]
-        full = read_render(renders, view, "full")
-        row.update(truth_eval.view_truth_metrics(
-            full=full, restored=read_render(renders, view, "restored"),
-            depth=read_render(renders, view, "depth"), clean=truth("clean", view, full),
-            water=truth("water", view, full), truth_depth=truth("depth", view, full),
-            gain=gain, metres_per_unit=scale.scale))
-    fitted = None if water is None else water.normalised.as_dict()
-    comparison = truth_eval.compare_water(fitted, read_truth_water(truth_dir / "water.json")
-                                          .as_dict(), scale.scale, gain)
-    return truth_eval.truth_summary(gain, scale, comparison)
+    return evaluate_colour_chart(cameras, args.renders, annotation, cfg.chart_detect,
+                                 render_restored if cfg.chart_render and model.is_file()
+                                 else None)

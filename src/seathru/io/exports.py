@@ -1,0 +1,193 @@
+"""Exports of the poses step's cameras that other tools open: nerfstudio and COLMAP.
+
+Folder ``results/<dataset>/export`` (replaced atomically)::
+
+    nerfstudio/transforms.json   nerfstudio's format (as ns-process-data writes it)
+    nerfstudio/images/<name>.png 8-bit sRGB copies of the undistorted linear images
+    nerfstudio/masks/<name>.png  validity masks (0 = ignore), where the poses step has them
+    nerfstudio/sparse_pc.ply     the sparse points (when the poses step has a COLMAP model)
+    colmap/sparse/0/{cameras,images,points3D}.txt   a COLMAP text model (written by pycolmap,
+                                 which adds rigs.txt and frames.txt for COLMAP >= 3.12)
+    colmap/images/<name>.png     the same 8-bit copies (hard links where possible)
+
+Cameras are the poses step's pinhole cameras (images with lens distortion were undistorted
+there, and the copies are those undistorted images); the writers take distortion parameters
+for other callers (OPENCV: k1, k2, p1, p2). Poses are in the source reconstruction's units
+(``cameras.json`` de-normalised: ``source = normalised / scale + centre``), the frame the
+sparse points are in.
+
+nerfstudio: ``transform_matrix`` is an OpenGL camera-to-world (x right, y up, z back) in
+nerfstudio's world, ``applied_transform`` the 3x4 map from our world to it: the one
+``nerfstudio/process_data/colmap_utils.py`` (``colmap_to_json``) applies to a COLMAP world,
+(x, y, z) -> (x, z, -y), so a COLMAP-style y-down world is z-up in the viewer. COLMAP:
+``cam_from_world`` per image, OpenCV axes; points without tracks (their observations are on
+the distorted images, not on these copies).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+
+from seathru.errors import PipelineError
+from seathru.geometry.poses import denormalise_c2w, opencv_to_opengl
+from seathru.io.atomic import atomic_dir, write_json
+from seathru.io.cameras import CameraSet, Frame, read_cameras
+from seathru.io.images import read_image, write_8bit
+from seathru.radiometry.colour import linear_to_srgb
+
+#: nerfstudio's applied_transform for a COLMAP world (colmap_to_json): (x, y, z) -> (x, z, -y).
+NERFSTUDIO_APPLIED = np.array([[1.0, 0.0, 0.0, 0.0],
+                               [0.0, 0.0, 1.0, 0.0],
+                               [0.0, -1.0, 0.0, 0.0]])
+DISTORTION_KEYS = ("k1", "k2", "p1", "p2")
+
+
+def source_c2w(cameras: CameraSet, frame: Frame) -> np.ndarray:
+    """``(4, 4)`` OpenCV camera-to-world of ``frame`` in the source units."""
+    return denormalise_c2w(frame.c2w_array, np.asarray(cameras.centre), cameras.scale)
+
+
+def _intrinsics(frame: Frame, distortion: dict[str, float] | None) -> dict[str, float]:
+    values = {"w": int(frame.width), "h": int(frame.height), "fl_x": float(frame.fx),
+              "fl_y": float(frame.fy), "cx": float(frame.cx), "cy": float(frame.cy)}
+    return {**values, **{k: float((distortion or {}).get(k, 0.0)) for k in DISTORTION_KEYS}}
+
+
+def nerfstudio_transforms(cameras: CameraSet, image_paths: dict[str, str],
+                          mask_paths: dict[str, str] | None = None,
+                          distortion: dict[str, dict[str, float]] | None = None,
+                          ply_path: str | None = None) -> dict:
+    """The content of nerfstudio's ``transforms.json`` for ``cameras``.
+
+    Args:
+        image_paths, mask_paths: per frame name, the file relative to transforms.json.
+        distortion: per frame name, OPENCV ``k1, k2, p1, p2`` (absent: none).
+        ply_path: the sparse point cloud relative to transforms.json, in nerfstudio's world.
+
+    Returns:
+        shared intrinsics at the top level when every frame has the same, else per frame;
+        ``camera_model`` OPENCV; frames in name order.
+    """
+    frames = sorted(cameras.frames, key=lambda f: f.name)
+    intrinsics = {f.name: _intrinsics(f, (distortion or {}).get(f.name)) for f in frames}
+    shared = len({tuple(v.items()) for v in intrinsics.values()}) == 1
+    transform = np.vstack([NERFSTUDIO_APPLIED, [0.0, 0.0, 0.0, 1.0]])
+    out: dict = {"camera_model": "OPENCV"}
+    if shared:
+        out.update(intrinsics[frames[0].name])
+    out["frames"] = []
+    for frame in frames:
+        c2w = transform @ opencv_to_opengl(source_c2w(cameras, frame))
+        entry = {"file_path": image_paths[frame.name], "transform_matrix": c2w.tolist()}
+        if mask_paths and frame.name in mask_paths:
+            entry["mask_path"] = mask_paths[frame.name]
+        if not shared:
+            entry.update(intrinsics[frame.name])
+        out["frames"].append(entry)
+    out["applied_transform"] = NERFSTUDIO_APPLIED.tolist()
+    if ply_path:
+        out["ply_file_path"] = ply_path
+    return out
+
+
+def colmap_reconstruction(cameras: CameraSet, image_names: dict[str, str],
+                          points: np.ndarray | None = None, colours: np.ndarray | None = None,
+                          distortion: dict[str, dict[str, float]] | None = None
+                          ) -> pycolmap.Reconstruction:
+    """A COLMAP model of ``cameras``: one camera per distinct intrinsics (PINHOLE, or OPENCV
+    with distortion), one image per frame (``image_names``: the file names), and ``points``
+    ``(M, 3)`` with ``colours`` ``(M, 3)`` uint8, without tracks."""
+    model = pycolmap.Reconstruction()
+    camera_ids: dict[tuple, int] = {}
+    for image_id, frame in enumerate(sorted(cameras.frames, key=lambda f: f.name), start=1):
+        k = (distortion or {}).get(frame.name) or {}
+        coeffs = [float(k.get(key, 0.0)) for key in DISTORTION_KEYS]
+        pinhole = [frame.fx, frame.fy, frame.cx, frame.cy]
+        key = (frame.width, frame.height, *pinhole, *coeffs)
+        if key not in camera_ids:
+            camera_ids[key] = len(camera_ids) + 1
+            model_name, params = (("OPENCV", pinhole + coeffs) if any(coeffs)
+                                  else ("PINHOLE", pinhole))
+            model.add_camera_with_trivial_rig(pycolmap.Camera(
+                model=model_name, width=int(frame.width), height=int(frame.height),
+                params=[float(p) for p in params], camera_id=camera_ids[key]))
+        w2c = np.linalg.inv(source_c2w(cameras, frame))
+        image = pycolmap.Image(name=image_names[frame.name], camera_id=camera_ids[key],
+                               image_id=image_id)
+        model.add_image_with_trivial_frame(image, pycolmap.Rigid3d(w2c[:3, :4]))
+    if points is not None:
+        colours = np.zeros((len(points), 3), np.uint8) if colours is None else colours
+        for xyz, rgb in zip(np.asarray(points, np.float64), np.asarray(colours, np.uint8)):
+            model.add_point3D(xyz, pycolmap.Track(), rgb)
+    return model
+
+
+def sparse_points(poses_dir: Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(xyz, rgb)`` of the poses step's COLMAP model (``sparse/``), or None without one."""
+    sparse = Path(poses_dir) / "sparse"
+    if not any((sparse / f"points3D.{ext}").is_file() for ext in ("bin", "txt")):
+        return None
+    model = pycolmap.Reconstruction(sparse)
+    if model.num_points3D() == 0:
+        return None
+    points = list(model.points3D.values())
+    return (np.array([p.xyz for p in points]), np.array([p.color for p in points], np.uint8))
+
+
+def _link_or_copy(source: Path, target: Path) -> None:
+    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.link(source, target)
+    except OSError:
+        shutil.copy2(source, target)
+
+
+def export_poses(poses_dir: Path, out: Path, image_format: str = "png") -> dict:
+    """Write the nerfstudio and COLMAP exports of a poses output folder into ``out``.
+
+    Returns:
+        a summary: frames, points, the two entry files.
+
+    Raises:
+        PipelineError: the camera file or an image is missing.
+    """
+    poses_dir = Path(poses_dir)
+    cameras = read_cameras(poses_dir / "cameras.json")
+    if not cameras.frames:
+        raise PipelineError(f"{poses_dir / 'cameras.json'}: no frames to export")
+    names = {f.name: f"{f.name}.{image_format}" for f in cameras.frames}
+    points = sparse_points(poses_dir)
+    with atomic_dir(out) as tmp:
+        ns_dir, colmap_dir = tmp / "nerfstudio", tmp / "colmap"
+        masks = {}
+        for frame in cameras.frames:
+            linear = read_image(cameras.image_path(frame))
+            write_8bit(ns_dir / "images" / names[frame.name],
+                       linear_to_srgb(np.clip(np.nan_to_num(linear), 0.0, 1.0)))
+            _link_or_copy(ns_dir / "images" / names[frame.name],
+                          colmap_dir / "images" / names[frame.name])
+            mask = cameras.mask_path(frame)
+            if mask is not None and mask.is_file():
+                _link_or_copy(mask, ns_dir / "masks" / f"{frame.name}.png")
+                masks[frame.name] = f"masks/{frame.name}.png"
+        ply = None
+        if points is not None:
+            cloud = pycolmap.Reconstruction()
+            moved = points[0] @ NERFSTUDIO_APPLIED[:, :3].T + NERFSTUDIO_APPLIED[:, 3]
+            for xyz, rgb in zip(moved, points[1]):
+                cloud.add_point3D(xyz, pycolmap.Track(), rgb)
+            cloud.export_PLY(ns_dir / "sparse_pc.ply")
+            ply = "sparse_pc.ply"
+        write_json(ns_dir / "transforms.json", nerfstudio_transforms(
+            cameras, {n: f"images/{f}" for n, f in names.items()}, masks, ply_path=ply))
+        model_dir = colmap_dir / "sparse" / "0"
+        model_dir.mkdir(parents=True)
+        colmap_reconstruction(cameras, names, *(points or (None, None))).write_text(model_dir)
+    return {"frames": len(cameras.frames), "points": 0 if points is None else len(points[0]),
+            "nerfstudio": str(out / "nerfstudio" / "transforms.json"),
+            "colmap": str(out / "colmap" / "sparse" / "0")}

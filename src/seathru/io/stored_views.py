@@ -1,0 +1,216 @@
+"""The dataset's images as they are stored in the source folder, and how a render maps onto them.
+
+A render of the trained model is linear radiance on the ingest's scale, in the geometry of the
+``cameras.json`` frame: the poses step's pinhole camera at the linear folder's size (images with
+lens distortion are undistorted there). Comparing it with the stored image (the community's
+protocol, colour charts annotated on a stored photo) needs both maps back:
+
+- radiometry: ``seathru.radiometry.stored_encoding`` with the ingest manifest's white balance
+  gains, the image's exposure factor and the file's encoding (:class:`StoredView`);
+- geometry: the source camera (``report.json`` ``source_cameras`` of the poses step, possibly
+  distorted) at the stored image's size; a render on the undistorted pinhole camera is warped
+  back onto it (:func:`render_to_stored`), points on the stored image forward onto the render
+  (:func:`stored_points_to_render`).
+
+RAW sources have no stored rendition: their "stored" image is the ingest's linear image
+(white-balanced, exposure-normalised, like the ``images_wb/`` of the SeaThru-NeRF release), with
+unit gains and a linear encoding.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pycolmap
+import tifffile
+
+from seathru.errors import PipelineError
+from seathru.io.cameras import CameraSet, Frame
+from seathru.io.colmap import camera_at_size, make_camera, undistortion
+from seathru.io.images import read_image
+from seathru.io.manifest import read_manifest
+from seathru.io.pose_report import read_pose_report
+from seathru.radiometry.linearise import orient
+
+#: Relative tolerance on intrinsics when matching a frame to a source camera.
+INTRINSICS_RTOL = 1e-3
+
+
+@dataclass(frozen=True)
+class StoredView:
+    """One image of the dataset as stored.
+
+    ``path``: the stored file (for RAW sources the ingest's linear TIFF); ``encoding``: ``srgb``
+    or ``linear``; ``gains`` ``(3,)`` and ``exposure_factor``: what ingest multiplied by;
+    ``flip``: the orientation ingest applied (LibRaw flip code); ``size``: ``(width, height)``
+    after orientation; ``file_name``: the stored file's name (the protocol sorts these).
+    """
+
+    name: str
+    file_name: str
+    path: Path
+    kind: str
+    encoding: str
+    gains: tuple[float, float, float]
+    exposure_factor: float
+    flip: int
+    size: tuple[int, int]
+
+
+def ingest_folder_of(cameras: CameraSet) -> Path:
+    """The ingest folder a camera file comes from: ``report.json``'s ``ingest`` beside it when
+    that folder exists, else the sibling ``ingest`` folder (``results/<dataset>/ingest``)."""
+    root = cameras.root or Path(".")
+    report = root / "report.json"
+    if report.is_file():
+        given = Path(str(read_pose_report(report).get("ingest", "")))
+        if given.name and (given / "manifest.json").is_file():
+            return given
+    return root.parent / "ingest"
+
+
+def read_stored_views(ingest: Path) -> dict[str, StoredView]:
+    """Every image of an ingest output's ``manifest.json``, by name.
+
+    Raises:
+        PipelineError: naming the manifest when it is missing or malformed.
+    """
+    manifest = read_manifest(Path(ingest) / "manifest.json")
+    gains = tuple(float(g) for g in manifest["white_balance"]["gains"])
+    views = {}
+    for image in manifest["images"]:
+        if image["kind"] == "raw":
+            path, encoding, view_gains, factor, flip = (Path(ingest) / image["linear"], "linear",
+                                                        (1.0, 1.0, 1.0), 1.0, 0)
+            size = (int(image["width"]), int(image["height"]))
+        else:
+            path, encoding, view_gains = Path(image["source_path"]), image["kind"], gains
+            factor, flip = float(image["exposure_factor"]), int(image["decoder"].get("flip", 0))
+            size = (int(image["source_size"][0]), int(image["source_size"][1]))
+        views[image["name"]] = StoredView(
+            name=image["name"], file_name=image["source"], path=path, kind=image["kind"],
+            encoding=encoding, gains=view_gains, exposure_factor=factor, flip=flip, size=size)
+    return views
+
+
+def read_stored_codes(view: StoredView) -> np.ndarray:
+    """The stored image's values as the file holds them (uint8, uint16 or float), oriented as
+    ingest oriented it, ``(H, W, 3)``. For RAW sources: the ingest's float linear image."""
+    if view.kind == "raw":
+        return read_image(view.path)
+    if not view.path.is_file():
+        raise PipelineError(f"{view.path}: stored image not found; the dataset folder changed "
+                            "since ingest")
+    if view.path.suffix.lower() in (".tif", ".tiff"):
+        codes = tifffile.imread(view.path)
+        if codes.ndim == 3 and codes.shape[0] in (3, 4) and codes.shape[2] not in (3, 4):
+            codes = np.moveaxis(codes, 0, -1)  # planar-separate TIFF
+    else:
+        codes = cv2.imread(str(view.path), cv2.IMREAD_UNCHANGED)  # no EXIF orientation
+        if codes is None:
+            raise PipelineError(f"{view.path}: stored image cannot be read")
+        if codes.ndim == 3:
+            codes = cv2.cvtColor(codes, cv2.COLOR_BGRA2RGB if codes.shape[2] == 4
+                                 else cv2.COLOR_BGR2RGB)
+    if codes.ndim == 2:
+        codes = np.repeat(codes[..., None], 3, axis=2)
+    return orient(codes[..., :3], view.flip)
+
+
+def source_cameras(cameras: CameraSet) -> list[pycolmap.Camera]:
+    """The poses step's source cameras (``report.json``), possibly distorted; [] without one."""
+    report = (cameras.root or Path(".")) / "report.json"
+    if not report.is_file():
+        return []
+    return [make_camera(c["model"], c["width"], c["height"], c["params"])
+            for c in read_pose_report(report)["source_cameras"]]
+
+
+def _same_pinhole(frame: Frame, fx, fy, cx, cy, width, height) -> bool:
+    return (frame.width, frame.height) == (width, height) and np.allclose(
+        [frame.fx, frame.fy, frame.cx, frame.cy], [fx, fy, cx, cy], rtol=INTRINSICS_RTOL,
+        atol=1e-6)
+
+
+def frame_source_camera(frame: Frame, size: tuple[int, int],
+                        candidates: list[pycolmap.Camera]) -> pycolmap.Camera | None:
+    """The distorted source camera, at the stored image's ``size``, whose undistortion is
+    ``frame``'s pinhole camera; None when the frame is a pinhole camera at ``size`` itself
+    (nothing to warp).
+
+    Raises:
+        PipelineError: the frame is neither (a resized linear folder, another camera): the
+            comparison needs the full-resolution geometry.
+    """
+    width, height = size
+    for camera in candidates:
+        try:
+            scaled = camera_at_size(camera, width, height)
+        except PipelineError:
+            continue
+        warp = undistortion(scaled)
+        if _same_pinhole(frame, warp.fx, warp.fy, warp.cx, warp.cy, warp.width, warp.height):
+            return None if warp.map_x is None else scaled
+    if not candidates and (frame.width, frame.height) == (width, height):
+        return None
+    raise PipelineError(
+        f"{frame.name}: its camera ({frame.width}x{frame.height}) is not the stored image's "
+        f"({width}x{height}) nor its undistortion; compare at full resolution: "
+        "poses.linear_folder=linear, ingest.max_size=0")
+
+
+def render_to_stored(image: np.ndarray, frame: Frame, camera: pycolmap.Camera | None
+                     ) -> np.ndarray:
+    """A render of ``frame`` warped onto the stored image's (distorted) camera, bilinear;
+    pixels the pinhole render does not cover are 0. ``camera`` None: returned as it is."""
+    if camera is None:
+        return image
+    if image.shape[:2] != (frame.height, frame.width):
+        raise PipelineError(f"{frame.name}: render of {image.shape[1]}x{image.shape[0]} pixels, "
+                            f"camera of {frame.width}x{frame.height}; render at full "
+                            "resolution (render.downscale=1)")
+    width, height = int(camera.width), int(camera.height)
+    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    rays = camera.cam_from_img(np.stack([u.ravel(), v.ravel()], axis=1))
+    # COLMAP puts pixel centres at +0.5, cv2.remap at integers
+    map_x = (frame.fx * rays[:, 0] + frame.cx - 0.5).reshape(height, width).astype(np.float32)
+    map_y = (frame.fy * rays[:, 1] + frame.cy - 0.5).reshape(height, width).astype(np.float32)
+    return cv2.remap(np.ascontiguousarray(image, dtype=np.float32), map_x, map_y,
+                     interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                     borderValue=0)
+
+
+def stored_points_on_frame(points: np.ndarray, size: tuple[int, int], frame: Frame,
+                           candidates: list[pycolmap.Camera]) -> np.ndarray:
+    """Points ``(N, 2)`` on the stored image of ``size = (width, height)`` to ``frame``'s image
+    (pixel (u, v) centred at (u + 0.5, v + 0.5) on both), through the source camera's
+    undistortion when the frame is one, then scaled to the frame's size (a downscaled linear
+    folder); without source cameras the frame is taken as the stored image resized.
+
+    Raises:
+        PipelineError: no source camera gives the frame's camera.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if not candidates:
+        return points * np.array([frame.width / size[0], frame.height / size[1]])
+    for camera in candidates:
+        try:
+            scaled = camera_at_size(camera, *size)
+        except PipelineError:
+            continue
+        warp = undistortion(scaled)
+        ratio = frame.width / warp.width
+        if not np.allclose([frame.height / warp.height, frame.fx, frame.fy, frame.cx, frame.cy],
+                           np.array([1.0, warp.fx, warp.fy, warp.cx, warp.cy]) * ratio,
+                           rtol=0.02):
+            continue
+        if warp.map_x is None:
+            return points * ratio
+        rays = scaled.cam_from_img(points)
+        return np.stack([warp.fx * rays[:, 0] + warp.cx,
+                         warp.fy * rays[:, 1] + warp.cy], axis=1) * ratio
+    raise PipelineError(f"{frame.name}: no source camera of the poses step gives its camera; "
+                        "cannot place points of the stored image on it")

@@ -1,0 +1,21 @@
+rule export:
+    """The cameras for other tools: nerfstudio transforms.json and a COLMAP text model."""
+    input:
+        rules.poses.output,
+    output:
+        transforms=f"{RESULTS}/{{dataset}}/export/nerfstudio/transforms.json",
+        colmap=directory(f"{RESULTS}/{{dataset}}/export/colmap"),
+    params:
+        out=f"{RESULTS}/{{dataset}}/export",
+        flags=flags("export"),
+    log:
+        log_file("export"),
+    benchmark:
+        benchmark_file("export")
+    threads: resource("export", "threads")
+    resources:
+        **rule_resources("export"),
+    conda:
+        "../../envs/seathru.yaml"
+    shell:
+        "seathru export --poses {input} --out {params.out} {params.flags} > {log} 2>&1"
