@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from seathru.errors import PipelineError
+from seathru.eval import truth as truth_eval
 from seathru.io import truth
 from seathru.io.cameras import read_cameras
 from seathru.io.dng import read_dng_metadata
@@ -90,3 +91,77 @@ def test_a_malformed_water_truth_is_refused_naming_the_file(written, tmp_path):
     bad.write_text(json.dumps({**data, "sigma_bs": [0.1, 0.2]}))
     with pytest.raises(PipelineError, match="water.json"):
         read_truth_water(bad)
+
+
+# -- open water (the survey path) --------------------------------------------------------------
+
+SURVEY = dive.DiveSpec(views=2, width=32, height=24, path="survey",
+                       water=water_params("coastal_3c"), seed=1, fov_deg=65.0, supersample=2,
+                       seabed_amplitude=0.08)
+
+
+@pytest.fixture(scope="module")
+def survey_written(tmp_path_factory):
+    root = tmp_path_factory.mktemp("survey") / "dive"
+    plan = dive.plan_dive(SURVEY, {})
+    views = list(dive.render_views(SURVEY, plan))
+    names = truth.view_names(SURVEY.views)
+    frames = []
+    for name, view in zip(names, views):
+        truth.write_view(root, name, view, SURVEY.sensor)
+        frames.append(truth.truth_frame(name, plan.camera, view.c2w, view.range_m, "test"))
+    open_water = sum(int(np.isinf(view.range_m).sum()) for view in views)
+    truth.write_records(root, SURVEY, plan, frames, test_every=1, open_water_pixels=open_water)
+    return root, open_water
+
+
+def test_open_water_is_stored_as_infinite_range_with_finite_bounds(survey_written):
+    root, open_water_pixels = survey_written
+    cameras = read_cameras(root / "truth" / "cameras.json")
+    c_med = np.float32(SURVEY.water.c_med)
+    for frame in cameras.frames:
+        depth = read_truth_image(root / "truth", "depth", frame.name)
+        open_water = np.isposinf(depth)
+        assert open_water.any() and not np.isnan(depth).any()
+        surface = depth[~open_water]
+        assert frame.near == pytest.approx((1 - truth.NEAR_FAR_MARGIN) * surface.min())
+        assert frame.far == pytest.approx((1 + truth.NEAR_FAR_MARGIN) * surface.max())
+        water = read_image(cameras.image_path(frame))
+        assert np.isfinite(water).all()
+        np.testing.assert_array_equal(water[open_water], np.broadcast_to(c_med, water[
+            open_water].shape))
+        clean = read_truth_image(root / "truth", "clean", frame.name)
+        assert np.isfinite(clean).all() and np.all(clean[open_water] == 0.0)
+    assert np.isfinite(cameras.near) and np.isfinite(cameras.far)
+    scene = json.loads((root / "truth" / "scene.json").read_text())
+    assert scene["path"] == "survey" and scene["open_water_pixels"] == open_water_pixels > 0
+    assert scene["seabed"]["slope"] > 0
+    readme = (root / "README.md").read_text()
+    assert "`+inf`" in readme and "exactly `c_med`" in readme and "path `survey`" in readme
+
+
+def test_truth_scores_leave_open_water_out(survey_written):
+    """Restored and depth scores against the truth ignore pixels whose true range is infinite:
+    whatever a model renders there (no clean truth exists), the scores do not change."""
+    root, _ = survey_written
+    name = truth.view_names(SURVEY.views)[0]
+    clean, water, depth = (read_truth_image(root / "truth", kind, name)
+                           for kind in ("clean", "water", "depth"))
+    open_water = np.isinf(depth)
+    rng = np.random.default_rng(0)
+    restored = np.clip(clean + rng.normal(0.0, 0.01, clean.shape), 0, None).astype(np.float32)
+    rendered_depth = np.where(open_water, 60.0, depth * 1.02).astype(np.float32)
+
+    def scores(open_water_colour: float) -> dict[str, float]:
+        return truth_eval.view_truth_metrics(
+            full=water, restored=np.where(open_water[..., None], open_water_colour, restored),
+            depth=rendered_depth, clean=clean, water=water, truth_depth=depth,
+            gain=np.ones(3), metres_per_unit=1.0)
+
+    dark, bright = scores(0.0), scores(0.8)
+    # (full_vs_water is infinite: the full render here is the water truth itself)
+    assert all(np.isfinite(value) for key, value in dark.items()
+               if key != "full_vs_water_psnr_linear")
+    for key in ("restored_psnr_linear", "restored_ssim_linear", "restored_psnr_srgb"):
+        assert dark[key] == pytest.approx(bright[key]), key
+    assert dark["depth_median_abs_rel"] == pytest.approx(0.02, rel=1e-3)

@@ -72,3 +72,26 @@ def test_views_do_not_depend_on_the_worker_count(plan, views):
     for one, two in zip(views, parallel):
         np.testing.assert_array_equal(one.raw, two.raw)
         np.testing.assert_array_equal(one.water, two.water)
+
+
+SURVEY = dataclasses.replace(SPEC, path="survey", views=4, width=32, height=24, seed=7)
+
+
+def test_survey_is_deterministic_given_the_seed():
+    plan = dive.plan_dive(SURVEY, {})
+    again = dive.plan_dive(SURVEY, {})
+    np.testing.assert_array_equal(again.poses, plan.poses)
+    first, second = (list(dive.render_views(SURVEY, p)) for p in (plan, again))
+    for one, two in zip(first, second):
+        for name in ("raw", "water", "clean", "range_m", "jpeg"):
+            np.testing.assert_array_equal(getattr(one, name), getattr(two, name))
+    assert any(np.isposinf(view.range_m).any() for view in first)  # it is the open-water path
+    other = dive.plan_dive(dataclasses.replace(SURVEY, seed=8), {})
+    assert not np.array_equal(other.poses, plan.poses)
+
+
+def test_each_path_has_its_scene():
+    reef_scene = dive.build_scene("survey", {}, 0, 0.08)
+    plain = dive.build_scene("orbit", {}, 0, 0.08)
+    assert reef_scene.seabed.slope > 0.3 and plain.seabed.slope == 0.0
+    assert plain.seabed.amplitude == reef_scene.seabed.amplitude == 0.08

@@ -16,6 +16,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seathru.cli import main as cli_main
+from seathru.sim import dive as dive_mod
+from seathru.sim import reef
 from seathru.sim import scene as scene_mod
 from seathru.sim import sensor as sensor_mod
 from seathru.sim.water import PRESETS, WaterParams, WaterPreset, water_image, water_params
@@ -104,15 +106,74 @@ def test_undulating_seabed_hit_is_on_surface_and_first():
     assert np.all(before[..., 2] > seabed.height(before[..., 0], before[..., 1]) - 1e-9)
 
 
-def test_open_water_gives_nan_range_and_c_med():
+def test_open_water_gives_infinite_range_zero_clean_and_c_med():
     camera = sensor_mod.Pinhole.from_fov(8, 6, 40.0)
     c2w = scene_mod.look_at((0.0, 0.0, 1.0), (5.0, 0.0, 3.0))  # looking up: no surface
     origin, dirs = sensor_mod.pixel_rays(camera, c2w, supersample=2)
     clean, depth = scene_mod.render_view(_flat_scene(), origin, dirs)
-    assert np.all(np.isnan(depth)) and np.all(np.isnan(clean))
-    params = PRESETS["default"]
-    np.testing.assert_array_equal(water_image(clean, depth, params),
-                                  np.broadcast_to(np.float32(params.c_med), clean.shape))
+    assert np.all(np.isposinf(depth)) and np.all(clean == 0.0)
+    for params in (PRESETS["default"], PRESETS["clear"]):
+        np.testing.assert_array_equal(water_image(clean, depth, params),
+                                      np.broadcast_to(np.float32(params.c_med), clean.shape))
+    # NaN ranges (older outputs) and non-finite clean values there give c_med too, never NaN.
+    nan_clean = np.full_like(clean, np.nan)
+    np.testing.assert_array_equal(water_image(nan_clean, np.full_like(depth, np.nan),
+                                              PRESETS["turbid"]),
+                                  np.broadcast_to(np.float32(PRESETS["turbid"].c_med),
+                                                  clean.shape))
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000), slope_deg=st.floats(5.0, 40.0),
+       amplitude=st.sampled_from([0.0, 0.08, 0.15]))
+def test_reef_slope_hit_is_on_surface_and_first_and_misses_stay_above(seed, slope_deg,
+                                                                     amplitude):
+    """Rays in every direction (up the slope too) from points above a reef slope: a hit lies on
+    the seabed with nothing before it; a miss stays above the seabed along the whole ray."""
+    seabed = scene_mod.Seabed(amplitude=amplitude, slope=math.tan(math.radians(slope_deg)),
+                              slope_direction=0.7, crest=2.0, crest_width=0.8)
+    rng = np.random.default_rng(seed)
+    n = 300
+    xy = rng.uniform(-3.0, 3.0, (n, 2))
+    origins = np.column_stack([xy, seabed.height(xy[:, 0], xy[:, 1])
+                               + rng.uniform(0.3, 2.0, n)])
+    dirs = rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    t = seabed.intersect(origins, dirs)
+    hit = np.isfinite(t)
+    assert 0.1 < hit.mean() < 0.95  # the sample holds both
+    points = origins[hit] + t[hit, None] * dirs[hit]
+    np.testing.assert_allclose(points[:, 2], seabed.height(points[:, 0], points[:, 1]),
+                               atol=1e-8)
+    fractions = np.linspace(0.0, 0.999, 2000)
+    before = origins[hit, None, :] + (t[hit, None] * fractions)[..., None] * dirs[hit, None, :]
+    assert np.all(before[..., 2] > seabed.height(before[..., 0], before[..., 1]) - 1e-9)
+    # Misses: sampled densely out to 200 m the ray never goes below the seabed.
+    along = np.linspace(0.0, 200.0, 20_001)
+    missed = origins[~hit, None, :] + along[None, :, None] * dirs[~hit, None, :]
+    assert np.all(missed[..., 2] > seabed.height(missed[..., 0], missed[..., 1]))
+
+
+def test_reef_slope_height_gradient_matches_finite_differences():
+    seabed = scene_mod.Seabed(amplitude=0.08, slope=0.5, slope_direction=1.2, crest=1.0,
+                              crest_width=0.6)
+    x, y = np.meshgrid(np.linspace(-4, 4, 9), np.linspace(-4, 4, 9))
+    height, gx, gy = seabed.height_and_gradient(x, y)
+    np.testing.assert_allclose(height, seabed.height(x, y), atol=1e-12)
+    step = 1e-6
+    np.testing.assert_allclose(gx, (seabed.height(x + step, y) - seabed.height(x - step, y))
+                               / (2 * step), atol=1e-6)
+    np.testing.assert_allclose(gy, (seabed.height(x, y + step) - seabed.height(x, y - step))
+                               / (2 * step), atol=1e-6)
+    assert np.hypot(gx, gy).max() <= seabed.lipschitz()
+    assert height.max() <= seabed.top()
+    # Far below the crest the slope rises at its gradient; far above it the reef top is flat.
+    u = lambda px, py: px * math.cos(1.2) + py * math.sin(1.2)  # noqa: E731
+    flat = scene_mod.Seabed(amplitude=0.0, slope=0.5, slope_direction=1.2, crest=1.0)
+    assert flat.height(np.array(-20 * math.cos(1.2)), np.array(-20 * math.sin(1.2))) \
+        == pytest.approx(0.5 * u(-20 * math.cos(1.2), -20 * math.sin(1.2)), abs=1e-9)
+    assert flat.height(np.array(30 * math.cos(1.2)), np.array(30 * math.sin(1.2))) \
+        == pytest.approx(0.5 * 1.0, abs=1e-9)
 
 
 @pytest.mark.parametrize("path", ["orbit", "transect"])
@@ -140,6 +201,44 @@ def test_paths_are_rotations_looking_at_the_scene(path):
             v = camera.fy * local[1] / local[2] + camera.cy
             assert local[2] > 0 and abs(u - camera.cx) < 0.15 * camera.width \
                 and abs(v - camera.cy) < 0.15 * camera.height
+
+
+def test_colmap_registers_a_small_survey_with_centres_within_one_percent(tmp_path):
+    """14 survey views (320x240): every view registers, camera centres within 1% of the
+    trajectory's extent after a similarity alignment, the camera rotations agree."""
+    from seathru.cli import build_parser
+    from seathru.geometry.poses import compare_trajectories, denormalise_c2w
+
+    simulate(tmp_path / "sim", Settings(views=14, path="survey", supersample=1, seed=0))
+    ingest = tmp_path / "ingest"  # the layout poses reads: JPEGs to match, linear images
+    ingest.mkdir()
+    (ingest / "matching").symlink_to(tmp_path / "sim" / "jpeg", target_is_directory=True)
+    (ingest / "linear").symlink_to(tmp_path / "sim" / "truth" / "water",
+                                   target_is_directory=True)
+    args = build_parser().parse_args(["poses", "--ingest", str(ingest), "--out",
+                                      str(tmp_path / "poses"), "--threads", "1"])
+    args._run(args)
+
+    def poses(path):
+        cameras = read_cameras(path)
+        return {f.name: denormalise_c2w(f.c2w_array, cameras.centre, cameras.scale)
+                for f in cameras.frames}
+
+    found, expected = poses(tmp_path / "poses" / "cameras.json"), poses(
+        tmp_path / "sim" / "truth" / "cameras.json")
+    assert sorted(found) == sorted(expected)
+    names = sorted(expected)
+    estimate, reference = (np.array([p[n] for n in names]) for p in (found, expected))
+    comparison = compare_trajectories(estimate, reference)
+    assert comparison.max_relative_position_error < 0.01
+    assert comparison.rotation_errors_deg.max() < 1.5
+    # The path is nearly straight, so the alignment's roll about it comes from small sways;
+    # the relative rotations between the views are sharper.
+    relative = [np.degrees(np.arccos(np.clip((np.trace(
+        (estimate[i, :3, :3].T @ estimate[i + 1, :3, :3]).T
+        @ (reference[i, :3, :3].T @ reference[i + 1, :3, :3])) - 1) / 2, -1, 1)))
+        for i in range(len(names) - 1)]
+    assert max(relative) < 0.5
 
 
 # ------------------------------------------------------------------------------ water model
@@ -182,6 +281,102 @@ def test_water_params_scale_and_override():
     assert math.exp(-turbid.sigma_attn[1] * 3.5) == pytest.approx(0.1, abs=0.01)
 
 
+JERLOV = [name for name in PRESETS if name.startswith(("oceanic_", "coastal_"))]
+
+
+def test_water_presets_span_clear_oceanic_to_turbid_coastal():
+    assert {"default", "clear", "turbid"} <= set(PRESETS) and len(JERLOV) >= 6
+    assert all(params.preset == name for name, params in PRESETS.items())
+    distinct = {(p.sigma_attn, p.sigma_bs, p.c_med) for p in PRESETS.values()}
+    assert len(distinct) == len(PRESETS)
+    for name in ["default", *JERLOV]:  # turbid keeps its published values, G = B backscatter
+        attn, bs, med = (np.array(v) for v in (PRESETS[name].sigma_attn, PRESETS[name].sigma_bs,
+                                               PRESETS[name].c_med))
+        for values in (attn, bs, med):
+            assert np.all(values > 0) and len(set(values.tolist())) == 3, name
+        assert np.all(np.abs(attn - bs) > 0.1 * attn), name  # backscatter is not attenuation
+    # In the listed order, from the clearest oceanic to the most turbid coastal water: the mean
+    # attenuation and the blue attenuation grow; oceanic water takes red first, coastal water
+    # takes blue before green (dissolved matter).
+    mean_attn = [float(np.mean(PRESETS[name].sigma_attn)) for name in JERLOV]
+    blue = [PRESETS[name].sigma_attn[2] for name in JERLOV]
+    assert mean_attn == sorted(mean_attn) and blue == sorted(blue)
+    for name in JERLOV:
+        red, green, blue_ = PRESETS[name].sigma_attn
+        assert red > green, name
+        if name.startswith("oceanic_"):
+            assert red > blue_, name
+        else:
+            assert blue_ > green, name
+
+
+@pytest.mark.parametrize("preset", list(PRESETS))
+def test_every_preset_forms_finite_images_with_open_water(preset):
+    clean = np.array([[[0.3, 0.2, 0.1], [0.0, 0.0, 0.0], [0.5, 0.5, 0.5]]], np.float32)
+    depth = np.array([[0.5, np.inf, 40.0]], np.float32)
+    image = water_image(clean, depth, water_params(preset))
+    assert np.isfinite(image).all()
+    np.testing.assert_array_equal(image[0, 1], np.float32(PRESETS[preset].c_med))
+
+
+# ------------------------------------------------------------------------------ survey
+
+SURVEY_SPEC = dive_mod.DiveSpec(views=24, width=64, height=48, path="survey",
+                                water=water_params("default"), seed=0, fov_deg=65.0,
+                                supersample=1, seabed_amplitude=0.08)
+
+
+@pytest.fixture(scope="module")
+def survey() -> list[dive_mod.SimulatedView]:
+    """The demo's survey (24 views) at 64x48 pixels, procedural textures."""
+    plan = dive_mod.plan_dive(SURVEY_SPEC, {})
+    return list(dive_mod.render_views(SURVEY_SPEC, plan))
+
+
+def test_survey_sees_open_water_in_every_frame_and_ranges_from_half_a_metre_to_beyond_20(
+        survey):
+    finite = []
+    for view in survey:
+        open_water = ~np.isfinite(view.range_m)
+        assert np.all(np.isposinf(view.range_m[open_water]))
+        assert 0.02 < open_water.mean() < 0.5  # open water in part of every frame
+        # above the crest line: the top row is mostly open water, the bottom row is reef
+        assert open_water[0].mean() > 0.4 and not open_water[-1].any()
+        finite.append(view.range_m[~open_water])
+    ranges = np.concatenate(finite)
+    assert ranges.min() < 0.6 and ranges.max() > 20.0
+    assert np.mean(ranges > 10.0) > 0.005 and np.median(ranges) < 5.0
+
+
+def test_survey_water_formation_is_finite_with_c_med_in_open_water(survey):
+    c_med = np.float32(SURVEY_SPEC.water.c_med)
+    for view in survey:
+        open_water = ~np.isfinite(view.range_m)
+        assert np.isfinite(view.water).all() and np.isfinite(view.clean).all()
+        assert np.isfinite(view.jpeg).all()
+        np.testing.assert_array_equal(view.water[open_water], np.broadcast_to(
+            c_med, (int(open_water.sum()), 3)))
+        assert np.all(view.clean[open_water] == 0.0)
+        np.testing.assert_array_equal(view.water, water_image(view.clean, view.range_m,
+                                                              SURVEY_SPEC.water))
+
+
+def test_survey_path_swims_along_the_reef_looking_up_the_slope():
+    scene = reef.build_reef_scene({}, seed=0)
+    poses = reef.survey_path(scene, 24, np.random.default_rng(0))
+    for c2w in poses:
+        rotation = c2w[:3, :3]
+        np.testing.assert_allclose(rotation.T @ rotation, np.eye(3), atol=1e-12)
+        assert np.linalg.det(rotation) == pytest.approx(1.0)
+        centre, forward = c2w[:3, 3], rotation[:, 2]
+        ground = float(scene.seabed.height(centre[0], centre[1]))
+        assert 0.9 < centre[2] - ground < 1.5  # about a metre above the reef
+        assert forward[1] > 0.5 and abs(forward[2]) < 0.3  # up the slope, near the horizon
+        assert centre[1] < scene.seabed.crest - 3.0  # downslope of the crest
+    travel = poses[-1, :3, 3] - poses[0, :3, 3]
+    assert travel[0] > 3.0 and abs(travel[1]) < 0.5  # along the contour (x)
+
+
 # ------------------------------------------------------------------------------ sensor
 
 def test_raw_noise_follows_poisson_gaussian_model():
@@ -209,7 +404,7 @@ def test_camera_jpeg_matches_float64_reference(level):
 
 
 def test_choices_of_the_settings_are_the_tables():
-    assert typing.get_args(scene_mod.CameraPath) == tuple(scene_mod.CAMERA_PATHS)
+    assert typing.get_args(dive_mod.CameraPath) == tuple(dive_mod.CAMERA_PATHS)
     assert typing.get_args(WaterPreset) == tuple(PRESETS)
 
 

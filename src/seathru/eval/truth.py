@@ -5,8 +5,9 @@
   least squares between the full renders and the truth images *with water* (pooled over the
   held-out views, :func:`pooled_gain`), and the same gain is applied to the restored renders
   before comparing them with the clean truth ``J`` (and to the fitted medium colour ``c_med``),
-  over the pixels where ``J`` is defined (open-water pixels have none). The full render compared
-  with the clean truth is reported too: the restoration should beat it;
+  over the pixels where ``J`` is defined (open-water pixels, whose true range is infinite, have
+  none). The full render compared with the clean truth is reported too: the restoration should
+  beat it;
 - metric scale (:func:`camera_metric_scale`): camera centres of the evaluated camera file
   (normalised units) are aligned to the truth centres (metres) by a similarity (Umeyama); its
   scale converts predicted depths to metres and fitted coefficients to 1/m (the camera files'
@@ -81,13 +82,15 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
     Args:
         full, restored: the renders ``(H, W, 3)``, pipeline colour scale.
         depth: rendered depth ``(H, W)``, normalised units.
-        clean: the clean truth ``(H, W, 3)``, NaN where a pixel sees open water (not scored).
+        clean: the clean truth ``(H, W, 3)``; not scored where a pixel sees open water.
         water: the truth with water ``(H, W, 3)``.
-        truth_depth: the true range ``(H, W)`` in metres.
+        truth_depth: the true range ``(H, W)`` in metres, ``+inf`` (or NaN) where a pixel sees
+            open water: those pixels have no clean truth (the simulator stores 0, older
+            outputs NaN) and no depth, and are left out of the restored and depth scores.
         gain: ``(3,)`` from :func:`pooled_gain`; metres_per_unit: from
             :func:`camera_metric_scale`.
     """
-    defined = np.all(np.isfinite(clean), axis=-1)
+    defined = np.all(np.isfinite(clean), axis=-1) & np.isfinite(truth_depth)
     restored_m = metrics.image_metrics(gain * restored, clean, valid=defined)
     baseline = metrics.image_metrics(gain * full, clean, valid=defined)
     fit = metrics.image_metrics(gain * full, water)

@@ -6,16 +6,18 @@ Layout (``README`` below is written into every folder, with the dive's values)::
     jpeg/<name>.jpg           the same photo as an 8-bit sRGB JPEG (camera-like rendering)
     truth/clean/<name>.tiff   clean linear radiance J, float32 (H, W, 3)
     truth/water/<name>.tiff   linear water image I before the sensor, float32 (H, W, 3)
-    truth/depth/<name>.tiff   range z in metres, float32 (H, W)
+    truth/depth/<name>.tiff   range z in metres, float32 (H, W); +inf where open water
     truth/cameras.json        cameras (seathru-cameras/1); images point to truth/water/
     truth/water.json          medium parameters of the image formation model
     truth/sensor.json         sensor parameters and per-image exposure
     truth/scene.json          scene geometry (seabed formula, objects, light, path)
 
-Images are named ``dive_0000``, ``dive_0001``, ... The writers here take ``seathru.sim.dive``
-objects. Readers: ``seathru.io.cameras.read_cameras`` (cameras.json),
-``seathru.io.water.read_truth_water`` (water.json), ``seathru.io.evaluation.read_truth_image``
-(truth images), ``seathru.io.dng`` (raw files).
+Open-water pixels (no surface along the ray) have range ``+inf``, clean radiance 0 and water
+image ``c_med``; cameras.json's near/far come from the finite ranges only. Images are named
+``dive_0000``, ``dive_0001``, ... The writers here take ``seathru.sim.dive`` objects.
+Readers: ``seathru.io.cameras.read_cameras`` (cameras.json), ``seathru.io.water.read_truth_water``
+(water.json), ``seathru.io.evaluation.read_truth_image`` (truth images), ``seathru.io.dng`` (raw
+files).
 """
 
 from __future__ import annotations
@@ -59,7 +61,8 @@ def check_replaceable(out: str | os.PathLike) -> None:
 
 
 def view_range_limits(range_m: np.ndarray) -> tuple[float, float]:
-    """(min, max) finite range of a view in metres; (0.1, 10) when it sees only open water."""
+    """(min, max) finite range of a view in metres (open water, ``inf`` or NaN, left out);
+    (0.1, 10) when it sees only open water."""
     finite = range_m[np.isfinite(range_m)]
     if not finite.size:
         return 0.1, 10.0
@@ -148,7 +151,7 @@ Units: metres; world z up, seabed near z = 0. Images are named `{NAME_PREFIX}000
     jpeg/<name>.jpg           the same photo as an 8-bit sRGB JPEG (camera-like rendering)
     truth/clean/<name>.tiff   clean linear radiance J, float32 (H, W, 3)
     truth/water/<name>.tiff   linear water image I before the sensor, float32 (H, W, 3)
-    truth/depth/<name>.tiff   range z in metres, float32 (H, W)
+    truth/depth/<name>.tiff   range z in metres, float32 (H, W); +inf where open water
     truth/cameras.json        cameras (seathru-cameras/1); images point to truth/water/
     truth/water.json          medium parameters of the image formation model
     truth/sensor.json         sensor parameters and per-image exposure
@@ -158,9 +161,12 @@ Units: metres; world z up, seabed near z = 0. Images are named `{NAME_PREFIX}000
 
 - **Range** `z` is the Euclidean distance from the camera centre to the surface along
   the pixel's ray (not the z-depth). With s x s supersampling, a pixel's clean radiance
-  and range are the *means* over its subsamples. A pixel where any subsample sees no
-  surface (open water to infinity) has NaN range and NaN clean radiance; its water
-  image is `c_med`.
+  and range are the *means* over its subsamples.
+- **Open water**: a pixel where any subsample sees no surface (water to infinity, e.g.
+  above the reef crest of the `survey` path) has range `+inf` (IEEE infinity in the
+  float32 TIFF), clean radiance `0` (no surface to restore: leave these pixels out when
+  scoring a restoration) and water image exactly `c_med`, the limit of the formula below
+  as z -> inf. Readers should select surfaces with `isfinite(range)`.
 - **Water image**, exact per pixel and channel (computed in float64 from the stored
   clean image and range, then stored as float32):
   `I = J * exp(-sigma_attn * z) + c_med * (1 - exp(-sigma_bs * z))` with
@@ -168,9 +174,10 @@ Units: metres; world z up, seabed near z = 0. Images are named `{NAME_PREFIX}000
   c_med = {list(water.c_med)} (truth/water.json).
 - **Cameras**: pinhole, OpenCV axes (x right, y down, z forward), pixel centres at
   +0.5, normalisation centre 0 and scale 1 (units are metres). A frame's `near`/`far`
-  are its minimum/maximum finite range times {1 - NEAR_FAR_MARGIN:.2f}/{1 + NEAR_FAR_MARGIN:.2f};
-  the scene-wide values are their min/max. In sorted name order, image 0, n, 2n, ...
-  (n = {test_every}) are `test`, the others `train`.
+  are its minimum/maximum finite range times {1 - NEAR_FAR_MARGIN:.2f}/{1 + NEAR_FAR_MARGIN:.2f}
+  (open water does not count: `far` stays finite); the scene-wide values are their
+  min/max. In sorted name order, image 0, n, 2n, ... (n = {test_every}) are `test`, the
+  others `train`.
 
 ## Sensor
 

@@ -13,14 +13,37 @@ from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
+from seathru.sim import reef
 from seathru.sim import scene as scene_mod
 from seathru.sim import sensor as sensor_mod
 from seathru.sim.water import WaterParams, water_image
+
+
+CameraPath = Literal["orbit", "transect", "survey"]  # the keys of CAMERA_PATHS
+# Each path's poses over its scene (see build_scene): the orbit circles the demo's objects
+# (no open water: the hard case for the water fit), the transect looks down on them while
+# swimming over, the survey looks across a reef slope with open water above the crest.
+CAMERA_PATHS: dict[CameraPath, Callable[[scene_mod.Scene, int, np.random.Generator],
+                                        np.ndarray]] = {
+    "orbit": scene_mod.orbit_path, "transect": scene_mod.transect_path,
+    "survey": reef.survey_path}
+
+
+def build_scene(path: CameraPath, textures_srgb: Mapping[str, np.ndarray] | None, seed: int,
+                seabed_amplitude: float) -> scene_mod.Scene:
+    """The scene a camera path looks at: the reef slope for ``survey``
+    (:func:`seathru.sim.reef.build_reef_scene`), the demo's patch of seabed otherwise
+    (:func:`seathru.sim.scene.build_dive_scene`)."""
+    if path == "survey":
+        return reef.build_reef_scene(textures_srgb, seed, seabed_amplitude)
+    return scene_mod.build_dive_scene(textures_srgb, seed=seed,
+                                      seabed=scene_mod.Seabed(amplitude=seabed_amplitude))
 
 
 @dataclass(frozen=True)
@@ -33,7 +56,7 @@ class DiveSpec:
     views: int
     width: int
     height: int
-    path: scene_mod.CameraPath
+    path: CameraPath
     water: WaterParams
     seed: int
     fov_deg: float
@@ -48,9 +71,9 @@ class DiveSpec:
             if value < 8 or value % 2:
                 raise ValueError(f"{name}: need an even number of pixels >= 8 (whole 2x2 Bayer "
                                  f"cells), got {value}")
-        if self.path not in scene_mod.CAMERA_PATHS:
+        if self.path not in CAMERA_PATHS:
             raise ValueError(f"path: unknown camera path {self.path!r}; use "
-                             f"{' or '.join(scene_mod.CAMERA_PATHS)}")
+                             f"{', '.join(CAMERA_PATHS)}")
         if not 10.0 <= self.fov_deg <= 150.0:
             raise ValueError(f"fov_deg: expected 10 to 150 degrees, got {self.fov_deg}")
         if not 1 <= self.supersample <= 8:
@@ -76,8 +99,9 @@ class DivePlan:
 @dataclass
 class SimulatedView:
     """One view: ``clean`` J and ``water`` I (H, W, 3) float32 linear radiance, ``range_m``
-    (H, W) float32 (NaN where no surface is seen), ``raw`` (H, W) uint16 RGGB mosaic and
-    ``jpeg`` (H, W, 3) sRGB-encoded float32 in [0, 1]."""
+    (H, W) float32 (``+inf`` where no surface is seen: open water, where J is 0 and I is
+    ``c_med``), ``raw`` (H, W) uint16 RGGB mosaic and ``jpeg`` (H, W, 3) sRGB-encoded float32
+    in [0, 1]."""
 
     c2w: np.ndarray
     exposure: sensor_mod.Exposure
@@ -107,7 +131,7 @@ def plan_dive(spec: DiveSpec, textures_srgb: Mapping[str, np.ndarray] | None = N
     Args:
         spec: what to simulate.
         textures_srgb: sRGB ``uint8`` texture images by name (see
-            :func:`seathru.sim.scene.build_dive_scene`); missing ones get procedural noise.
+            :func:`build_scene`); missing ones get procedural noise.
 
     Returns:
         the plan; deterministic given ``spec`` and the textures.
@@ -118,10 +142,9 @@ def plan_dive(spec: DiveSpec, textures_srgb: Mapping[str, np.ndarray] | None = N
     """
     scene_seed, path_seed, exposure_seed, noise_seed = np.random.SeedSequence(
         spec.seed).spawn(4)
-    scene = scene_mod.build_dive_scene(
-        textures_srgb, seed=int(scene_seed.generate_state(1)[0]),
-        seabed=scene_mod.Seabed(amplitude=spec.seabed_amplitude))
-    poses = scene_mod.CAMERA_PATHS[spec.path](scene, spec.views, np.random.default_rng(path_seed))
+    scene = build_scene(spec.path, textures_srgb, int(scene_seed.generate_state(1)[0]),
+                        spec.seabed_amplitude)
+    poses = CAMERA_PATHS[spec.path](scene, spec.views, np.random.default_rng(path_seed))
     metered = meter(scene, poses, spec)
     return DivePlan(
         scene=scene, poses=poses,

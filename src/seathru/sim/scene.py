@@ -2,14 +2,17 @@
 
 World frame: metres, z up. The seabed is the gently undulating height field ``z = h(x, y)``
 (a sum of three sinusoids, amplitude a few centimetres; ``amplitude=0`` gives the flat plane
-``z = base``). On it rest textured objects with closed-form ray intersections: ellipsoids
-(spheres and half-buried rocks) and boxes, each rotated about the vertical.
+``z = base``), optionally on a reef slope that levels off at a crest (``Seabed.slope``; the
+reef scene and its survey path are in ``seathru.sim.reef``). On it rest textured objects with
+closed-form ray intersections: ellipsoids (spheres and half-buried rocks) and boxes, each
+rotated about the vertical.
 
 Ray casting returns the range ``t``: the Euclidean distance from the ray origin to the first
-surface along the *unit* ray direction. Planes, ellipsoids and boxes are intersected in closed
-form. The undulating seabed is intersected by Lipschitz-bounded sphere tracing (steps never
-overshoot the first root, because ``|grad h|`` is bounded) followed by Newton polishing, which
-reaches the root to ~1e-9 m: exact for every practical purpose.
+surface along the *unit* ray direction (``inf`` for a ray that meets nothing: open water).
+Planes, ellipsoids and boxes are intersected in closed form. The undulating seabed is
+intersected by Lipschitz-bounded sphere tracing (steps never overshoot the first root, because
+``|grad h|`` is bounded) followed by Newton polishing, which reaches the root to ~1e-9 m: exact
+for every practical purpose.
 
 Clean radiance ``J`` (linear RGB) is Lambertian and view independent: texture albedo times
 ``ambient + diffuse * max(0, n . l) * visibility`` for one distant downwelling light ``l``
@@ -22,7 +25,9 @@ Photographs tile with their mirror images (no seams). The seabed's local detail 
 from a procedural, non-repeating 12 m cobble field (random Voronoi pebbles): a tiled photograph
 alone repeats every few metres, which makes SIFT match the wrong places along a transect.
 Textures are pre-filtered to at most ``MAX_TEXELS_PER_METRE``; with the default 2 x 2
-supersampling that keeps aliasing low at the demo's 2-10 m ranges.
+supersampling that keeps aliasing low at 1-10 m ranges. Farther away (the survey's far slope,
+20-50 m at grazing angles) the seabed texture aliases in the clean images; every water preset
+but the clearest hides it.
 This module does no file I/O.
 """
 
@@ -30,7 +35,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Literal, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import cv2
 import numpy as np
@@ -39,6 +44,7 @@ from seathru.radiometry.colour import srgb_to_linear
 
 NO_HIT = -2
 SEABED = -1
+MAX_SEABED_RANGE_M = 1000.0  # a reef slope seen beyond this range counts as open water
 MAX_TEXELS_PER_METRE = 200.0  # textures are pre-filtered to this density against aliasing
 
 
@@ -171,34 +177,68 @@ def _yaw_matrix(yaw: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Seabed:
-    """Height field ``h(x, y) = base + amplitude * (0.6 sin(k1 x + p1) cos(k2 y + p2)
-    + 0.4 sin(k3 (x cos a + y sin a) + p3))`` with ``k = 2 pi / wavelength``."""
+    """Height field ``h(x, y) = base + ramp(u) + amplitude * (0.6 sin(k1 x + p1) cos(k2 y + p2)
+    + 0.4 sin(k3 (x cos a + y sin a) + p3))`` with ``k = 2 pi / wavelength``.
+
+    ``ramp`` is an optional reef slope: with ``u = x cos d + y sin d`` (``d`` =
+    ``slope_direction``, the way up the slope), ``ramp(u) = slope * (crest - w * softplus((crest
+    - u) / w))`` rises with gradient ``slope`` (rise per metre) below the crest line ``u = crest``
+    and levels off into a flat reef top above it (``w`` = ``crest_width`` rounds the edge). Far
+    down the slope the seabed keeps falling: a ray travelling down faster than the slope never
+    meets it (open water). ``slope = 0`` (the default) is the gently undulating plain.
+    """
 
     amplitude: float = 0.08
     base: float = 0.0
     wavelengths: tuple[float, float, float] = (4.0, 3.3, 2.7)
     phases: tuple[float, float, float] = (0.3, 1.1, 2.0)
     direction: float = 0.6  # radians, direction of the third wave
+    slope: float = 0.0  # rise per metre of the reef slope (tan of its angle); 0: no slope
+    slope_direction: float = math.pi / 2  # radians from +x: the way up the slope
+    crest: float = 0.0  # metres along slope_direction where the slope levels off
+    crest_width: float = 1.0  # metres, the rounding of the crest
 
     def _k(self) -> tuple[float, float, float]:
         return tuple(2.0 * math.pi / w for w in self.wavelengths)  # type: ignore[return-value]
 
+    def _below_crest(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """``(crest - u) / crest_width``: how far below the crest line (x, y) lies."""
+        cd, sd = math.cos(self.slope_direction), math.sin(self.slope_direction)
+        return (self.crest - (x * cd + y * sd)) / self.crest_width
+
+    def _ramp(self, below: np.ndarray) -> np.ndarray:
+        return self.slope * (self.crest - self.crest_width * np.logaddexp(0.0, below))
+
+    def top(self) -> float:
+        """Upper bound of ``h``."""
+        return self.base + self.slope * self.crest + abs(self.amplitude)
+
     def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        height = np.full(np.broadcast(x, y).shape, self.base)
+        if self.slope != 0.0:
+            height = height + self._ramp(self._below_crest(x, y))
         if self.amplitude == 0.0:
-            return np.full(np.broadcast(x, y).shape, self.base)
+            return height
         k1, k2, k3 = self._k()
         p1, p2, p3 = self.phases
         ca, sa = math.cos(self.direction), math.sin(self.direction)
-        return self.base + self.amplitude * (
+        return height + self.amplitude * (
             0.6 * np.sin(k1 * x + p1) * np.cos(k2 * y + p2)
             + 0.4 * np.sin(k3 * (x * ca + y * sa) + p3))
 
     def height_and_gradient(self, x: np.ndarray, y: np.ndarray
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``h``, ``dh/dx``, ``dh/dy`` at (x, y)."""
+        shape = np.broadcast(x, y).shape
+        height, gx, gy = np.full(shape, self.base), np.zeros(shape), np.zeros(shape)
+        if self.slope != 0.0:
+            below = self._below_crest(x, y)
+            rise = self.slope * 0.5 * (1.0 + np.tanh(0.5 * below))  # slope * sigmoid(below)
+            height = height + self._ramp(below)
+            gx = gx + rise * math.cos(self.slope_direction)
+            gy = gy + rise * math.sin(self.slope_direction)
         if self.amplitude == 0.0:
-            shape = np.broadcast(x, y).shape
-            return np.full(shape, self.base), np.zeros(shape), np.zeros(shape)
+            return height, gx, gy
         k1, k2, k3 = self._k()
         p1, p2, p3 = self.phases
         ca, sa = math.cos(self.direction), math.sin(self.direction)
@@ -206,62 +246,102 @@ class Seabed:
         sin_a, cos_a, sin_b, cos_b = np.sin(a), np.cos(a), np.sin(b), np.cos(b)
         sin_c, cos_c = np.sin(c), np.cos(c)
         amp = self.amplitude
-        height = self.base + amp * (0.6 * sin_a * cos_b + 0.4 * sin_c)
+        height = height + amp * (0.6 * sin_a * cos_b + 0.4 * sin_c)
         wave3 = 0.4 * k3 * cos_c
-        gx = amp * (0.6 * k1 * cos_a * cos_b + wave3 * ca)
-        gy = amp * (-0.6 * k2 * sin_a * sin_b + wave3 * sa)
+        gx = gx + amp * (0.6 * k1 * cos_a * cos_b + wave3 * ca)
+        gy = gy + amp * (-0.6 * k2 * sin_a * sin_b + wave3 * sa)
         return height, gx, gy
 
     def lipschitz(self) -> float:
         """Upper bound of ``|grad h|``."""
         k1, k2, k3 = self._k()
-        return abs(self.amplitude) * (0.6 * math.hypot(k1, k2) + 0.4 * k3)
+        return abs(self.amplitude) * (0.6 * math.hypot(k1, k2) + 0.4 * k3) + abs(self.slope)
 
-    def intersect(self, origins: np.ndarray, dirs: np.ndarray, max_iterations: int = 200
+    def intersect(self, origins: np.ndarray, dirs: np.ndarray, max_iterations: int = 2000
                   ) -> np.ndarray:
-        """Range to the first seabed hit, (N,); ``inf`` where the ray never reaches it.
+        """Range to the first seabed hit, (N,); ``inf`` where the ray never reaches it: it
+        climbs away, runs down a reef slope faster than the slope falls, or would meet a reef
+        slope only beyond :data:`MAX_SEABED_RANGE_M` (or after ``max_iterations`` steps, which
+        takes a ray grazing the seabed for many metres).
 
-        ``origins`` (N, 3) or one shared origin (3,); rays must start above the seabed
-        (``origin_z > base + amplitude``).
+        ``origins`` (N, 3) or one shared origin (3,); rays must start above the seabed.
         """
         origins = np.broadcast_to(origins, dirs.shape)
         oz, dz = origins[:, 2], dirs[:, 2]
         t = np.full(dirs.shape[0], np.inf)
-        down = np.flatnonzero(dz < -1e-9)
-        if self.amplitude == 0.0:
+        if self.amplitude == 0.0 and self.slope == 0.0:
+            down = np.flatnonzero(dz < -1e-9)
             t[down] = (self.base - oz[down]) / dz[down]
             return t
-        top = self.base + abs(self.amplitude)
-        ox, oy, oz = (np.ascontiguousarray(origins[down, k]) for k in range(3))
-        dx, dy, dz = (np.ascontiguousarray(dirs[down, k]) for k in range(3))
-        # Start on the plane above every crest; from there conservative steps (the gap divided
-        # by the fastest the gap can close along the ray) cannot skip the first root.
-        tt = np.maximum((top - oz) / dz, 0.0)
-        speed = -dz + self.lipschitz() * np.hypot(dx, dy)
-        active = np.arange(down.size)
+        top = self.top()
+        horizontal = np.hypot(dirs[:, 0], dirs[:, 1])
+        waves = self.lipschitz() - abs(self.slope)  # bound of the waves' gradient
+        # How fast the gap to the seabed can close along a ray: -dz + (reef slope's rise along
+        # the ray) + waves. The slope's rise is rise(u) (d . up) with rise(u) in [0, slope]
+        # monotone along a ray, never larger ahead than where the ray is now: the current rise
+        # bounds every later step (exact on the slope's straight parts, so those converge fast).
+        cd, sd = math.cos(self.slope_direction), math.sin(self.slope_direction)
+        up_slope = dirs[:, 0] * cd + dirs[:, 1] * sd
+        fastest = waves * horizontal - dz + abs(self.slope) * np.maximum(up_slope, 0.0)
+        if self.slope == 0.0:  # a plain: only rays going down can reach it
+            rays = np.flatnonzero(dz < -1e-9)
+        else:  # a slope can rise faster than a ray climbs; beyond the top nothing is hit
+            rays = np.flatnonzero((fastest > 1e-9) & ((oz < top) | (dz < -1e-9)))
+        ox, oy, oz = (np.ascontiguousarray(origins[rays, k]) for k in range(3))
+        dx, dy, dz = (np.ascontiguousarray(dirs[rays, k]) for k in range(3))
+        base_speed = waves * horizontal[rays] - dz
+        up_slope = up_slope[rays]
+        with np.errstate(divide="ignore"):
+            to_top = (top - oz) / dz
+        # Start where the ray crosses the level above every crest (rays going down) or at the
+        # camera (rays starting below it); stop where a rising ray passes that level.
+        tt = np.where(dz < 0.0, np.maximum(to_top, 0.0), 0.0)
+        t_max = np.where(dz > 0.0, to_top, np.inf if self.slope == 0.0 else MAX_SEABED_RANGE_M)
+        # From there conservative steps (the gap divided by the fastest the gap can close
+        # along the rest of the ray) cannot skip the first root. A ray within 1 um of the
+        # seabed has found it if it is closing in; if it is moving away (a near miss: grazing a
+        # crest), it steps on by 1 mm.
+        tolerance, escape = 1e-6, 1e-3
+        found = np.zeros(rays.size, dtype=bool)
+        active = np.arange(rays.size)
         for _ in range(max_iterations):
             ta = tt[active]
-            ax, ay, az = ox[active], oy[active], oz[active]
-            bx, by, bz = dx[active], dy[active], dz[active]
-            gap = az + ta * bz - self.height(ax + ta * bx, ay + ta * by)
-            tt[active] = ta + np.maximum(gap, 0.0) / speed[active]
-            active = active[gap > 1e-3]
+            px, py = ox[active] + ta * dx[active], oy[active] + ta * dy[active]
+            gap = oz[active] + ta * dz[active] - self.height(px, py)
+            speed = base_speed[active]
+            if self.slope != 0.0:
+                rise = self.slope * 0.5 * (1.0 + np.tanh(0.5 * self._below_crest(px, py)))
+                speed = speed + rise * up_slope[active]
+            near = np.flatnonzero(gap <= tolerance)
+            closing_in = np.zeros(active.size, dtype=bool)
+            if near.size:
+                _, gx, gy = self.height_and_gradient(px[near], py[near])
+                rate = dz[active[near]] - gx * dx[active[near]] - gy * dy[active[near]]
+                closing_in[near] = rate < 0.0
+                gap[near] = np.where(rate < 0.0, gap[near], escape)
+            found[active[closing_in]] = True
+            # Where even the fastest closing rate is not positive, the gap only grows: no hit.
+            moving = (speed > 1e-12) & ~closing_in
+            tt[active] = ta + np.where(moving, np.maximum(gap, 0.0)
+                                       / np.where(moving, speed, 1.0), 0.0)
+            active = active[moving & (tt[active] < t_max[active])]
             if active.size == 0:
                 break
+        found = np.flatnonzero(found)
         # Newton polishing from just above the first root, until each ray has converged.
-        active = np.arange(down.size)
+        active = found
         for _ in range(8):
             ta = tt[active]
             ax, ay, az = ox[active], oy[active], oz[active]
             bx, by, bz = dx[active], dy[active], dz[active]
             height, gx, gy = self.height_and_gradient(ax + ta * bx, ay + ta * by)
-            gap = az + ta * bz - height
+            gap_a = az + ta * bz - height
             slope = bz - gx * bx - gy * by
-            tt[active] = ta + np.where(slope < -1e-6, -gap / np.minimum(slope, -1e-6), 0.0)
-            active = active[np.abs(gap) > 1e-12]
+            tt[active] = ta + np.where(slope < -1e-6, -gap_a / np.minimum(slope, -1e-6), 0.0)
+            active = active[np.abs(gap_a) > 1e-12]
             if active.size == 0:
                 break
-        t[down] = tt
+        t[rays[found]] = tt[found]
         return t
 
     def normal(self, points: np.ndarray) -> np.ndarray:
@@ -366,7 +446,8 @@ SceneObject = Ellipsoid | Box
 
 @dataclass
 class Scene:
-    """Seabed, objects, textures and light. ``target`` is the point orbits circle around."""
+    """Seabed, objects, textures and light. ``target`` is the point orbits circle around (the
+    centre of a survey)."""
 
     seabed: Seabed
     objects: list[SceneObject]
@@ -388,13 +469,18 @@ class Scene:
             else:
                 entry["half_size"] = list(obj.half_size)
             objects.append(entry)
+        seabed = self.seabed
         return {"units": "metres, z up",
-                "seabed": {"formula": "z = base + amplitude * (0.6 sin(k1 x + p1) cos(k2 y + p2) "
-                                      "+ 0.4 sin(k3 (x cos a + y sin a) + p3)), k = 2 pi / "
-                                      "wavelength",
-                           "amplitude": self.seabed.amplitude, "base": self.seabed.base,
-                           "wavelengths": list(self.seabed.wavelengths),
-                           "phases": list(self.seabed.phases), "a": self.seabed.direction},
+                "seabed": {"formula": "z = base + ramp(u) + amplitude * (0.6 sin(k1 x + p1) "
+                                      "cos(k2 y + p2) + 0.4 sin(k3 (x cos a + y sin a) + p3)), "
+                                      "k = 2 pi / wavelength; ramp(u) = slope * (crest - "
+                                      "crest_width * ln(1 + exp((crest - u) / crest_width))), "
+                                      "u = x cos d + y sin d (ramp = 0 when slope = 0)",
+                           "amplitude": seabed.amplitude, "base": seabed.base,
+                           "wavelengths": list(seabed.wavelengths),
+                           "phases": list(seabed.phases), "a": seabed.direction,
+                           "slope": seabed.slope, "d": seabed.slope_direction,
+                           "crest": seabed.crest, "crest_width": seabed.crest_width},
                 "objects": objects,
                 "light": {"direction_to_light": self.light_dir.tolist(), "ambient": self.ambient,
                           "diffuse": self.diffuse},
@@ -484,9 +570,18 @@ def build_dive_scene(textures_srgb: Mapping[str, np.ndarray] | None = None, seed
     """The demo scene. ``textures_srgb`` maps texture names of :data:`TEXTURE_LAYOUT` to sRGB
     ``uint8`` images; missing ones (and unknown names used by ``objects``) get fractal noise
     seeded by ``seed``. ``objects=None`` gives :func:`default_objects`."""
-    rng = np.random.default_rng(seed)
     seabed = Seabed() if seabed is None else seabed
     objects = default_objects(seabed) if objects is None else list(objects)
+    return Scene(seabed=seabed, objects=objects,
+                 textures=scene_textures(textures_srgb, objects, seed))
+
+
+def scene_textures(textures_srgb: Mapping[str, np.ndarray] | None, objects: Sequence[SceneObject],
+                   seed: int) -> dict[str, Texture]:
+    """Every texture of :data:`TEXTURE_LAYOUT` and of ``objects``, from ``textures_srgb`` (sRGB
+    ``uint8`` images by name) or, where missing, fractal noise seeded by ``seed``; plus the
+    seabed's procedural cobbles and low-frequency variation."""
+    rng = np.random.default_rng(seed)
     textures_srgb = dict(textures_srgb or {})
     names = set(TEXTURE_LAYOUT) | {o.texture for o in objects}
     textures = {}
@@ -507,7 +602,7 @@ def build_dive_scene(textures_srgb: Mapping[str, np.ndarray] | None = None, seed
         textures[name] = Texture(
             image=np.repeat(fractal_noise_image(rng, 128, exponent=2.0), 3, axis=2),
             texel_m=width_m / 128)
-    return Scene(seabed=seabed, objects=objects, textures=textures)
+    return textures
 
 
 def cast_rays(scene: Scene, origins: np.ndarray, dirs: np.ndarray, include_seabed: bool = True,
@@ -717,16 +812,18 @@ def render_view(scene: Scene, origin: np.ndarray, dirs: np.ndarray
     ``origin`` (3,) camera centre, ``dirs`` (H, W, S, 3) unit ray directions, S subsamples per
     pixel. Returns ``clean`` (H, W, 3) float32 (mean radiance of the subsamples) and ``range``
     (H, W) float32 (mean range of the subsamples, metres). A pixel where any subsample sees
-    open water (no surface) gets NaN in both.
+    open water (no surface) is an open-water pixel: range ``+inf`` and clean radiance 0 (there
+    is no surface to restore).
     """
     h, w, s, _ = dirs.shape
     flat = np.ascontiguousarray(dirs.reshape(-1, 3), dtype=np.float64)
     origin = np.asarray(origin, np.float64)
     t, index = cast_rays(scene, origin, flat, candidates=_view_candidates(scene, origin, dirs))
     radiance = shade(scene, origin, flat, t, index)
-    t = np.where(index == NO_HIT, np.nan, t)
-    clean = radiance.reshape(h, w, s, 3).mean(axis=2)
+    t = np.where(index == NO_HIT, np.inf, t)
     rng_m = t.reshape(h, w, s).mean(axis=2)
+    clean = np.where(np.isfinite(rng_m)[..., None], radiance.reshape(h, w, s, 3).mean(axis=2),
+                     0.0)
     return clean.astype(np.float32), rng_m.astype(np.float32)
 
 
@@ -792,8 +889,3 @@ def transect_path(scene: Scene, views: int, rng: np.random.Generator, length: fl
         poses.append(look_at((x, y, z), np.array([x, y, z]) + forward,
                              roll=rng.normal(0.0, math.radians(2.0))))
     return np.stack(poses)
-
-
-CameraPath = Literal["orbit", "transect"]  # the keys of CAMERA_PATHS
-CAMERA_PATHS: dict[CameraPath, Callable[[Scene, int, np.random.Generator], np.ndarray]] = {
-    "orbit": orbit_path, "transect": transect_path}

@@ -1,9 +1,11 @@
 """Simulate a dive: a synthetic underwater scene with known ground truth (the demo dataset).
 
 Renders a procedural seabed with textured balls, boxes and rocks along a dive camera path
-(``orbit`` around the centre or ``transect`` over the seabed), applies the SeaThru water model
-and a raw sensor model, and writes raw DNGs, camera-like JPEGs and the ground truth (clean
-images, water images, ranges, cameras, water and sensor parameters) into ``--out``, atomically:
+(``orbit`` around the centre, ``transect`` over the seabed, or ``survey`` across a reef slope
+with open water above its crest), applies the SeaThru water model (a named preset, the Jerlov
+water types among them, or custom coefficients) and a raw sensor model, and writes raw DNGs,
+camera-like JPEGs and the ground truth (clean images, water images, ranges, cameras, water and
+sensor parameters) into ``--out``, atomically:
 the folder appears complete or not at all. ``--out/README.md`` documents every file
 (``seathru.io.truth``); the simulation itself is ``seathru.sim.dive``.
 """
@@ -25,7 +27,7 @@ from seathru.io.cameras import every_nth_split
 from seathru.io.textures import load_sample_textures
 from seathru.settings import setting
 from seathru.sim import dive
-from seathru.sim.scene import CameraPath
+from seathru.sim.dive import CameraPath
 from seathru.sim.water import WaterPreset, water_params
 
 log = logging.getLogger(__name__)
@@ -38,10 +40,15 @@ class Settings:
     views: int = setting(24, help="number of images")
     width: int = setting(320, help="image width, pixels (even)")
     height: int = setting(240, help="image height, pixels (even)")
-    path: CameraPath = setting("orbit", help="camera path: circle the centre object (orbit), "
-                                             "or swim over the seabed (transect)")
+    path: CameraPath = setting("orbit", help="camera path: circle the centre object, no open "
+                                             "water (orbit); swim over the seabed looking down "
+                                             "(transect); swim along a reef slope looking "
+                                             "across it, 0.5-50 m ranges and open water above "
+                                             "the crest (survey)")
     water: WaterPreset = setting("default", help="water preset: default (coastal blue-green), "
-                                                 "clear (no water) or turbid (green, murky)")
+                                                 "clear (no water), turbid (green, murky), or a "
+                                                 "Jerlov type from clear oceanic (oceanic_i) to "
+                                                 "turbid coastal (coastal_9c)")
     water_scale: float = setting(1.0, help="multiply the preset's sigma_attn and sigma_bs "
                                            "(turbidity)")
     sigma_attn: list[float] | None = setting(None, length=3, help="override the attenuation "
