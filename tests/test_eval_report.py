@@ -182,3 +182,26 @@ def test_summary_table_and_html_mark_datasets_with_warnings():
     assert "&lt;attempts 1 and 2&gt;" in page and "<attempts" not in page
     row = page.split('<tr class="warn">')[1].split("</tr>")[0]
     assert "&#9888;" in row and "poses: unconfirmed_poses" in row
+
+
+def test_water_plot_draws_intervals_and_marks_undetermined_values():
+    from matplotlib.patches import Rectangle
+
+    from seathru.eval.report import water_intervals
+    from seathru.eval.report_plots import plot_water_parameters
+
+    water = {"sigma_attn": [0.5, 0.2, 0.1], "sigma_bs": [0.3, 0.3, 0.2], "c_med": [0.1, 0.2, 0.3],
+             "uncertainty": {"interval95": {"sigma_attn": [[0.4, 0.6]] * 3,
+                                            "sigma_bs": [[0.0, None]] * 3,
+                                            "c_med": [[0.05, 0.15]] * 3},
+                             "determined": {"sigma_attn": [True] * 3, "sigma_bs": [False] * 3,
+                                            "c_med": [True] * 3}}}
+    record = DatasetRecord("reef", water=water)
+    interval, determined = water_intervals(record)
+    assert interval["sigma_bs"][0] == [0.0, None] and determined["sigma_bs"] == [False] * 3
+    figure = plot_water_parameters([record, DatasetRecord("no_water")])
+    attn, bs, colour = figure.axes
+    for ax in (attn, bs, colour):
+        assert len([line for line in ax.lines if len(line.get_xdata()) == 2]) == 3  # intervals
+    hatched = [p for p in bs.patches if isinstance(p, Rectangle) and p.get_hatch()]
+    assert len(hatched) == 3 and not [p for p in attn.patches if p.get_hatch()]

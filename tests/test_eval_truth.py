@@ -77,3 +77,24 @@ def test_view_truth_metrics_scores_defined_pixels_in_metres():
     assert row["full_vs_clean_psnr_linear"] < 30
     assert row["depth_median_abs_rel"] == pytest.approx(0.0, abs=1e-12)
     assert row["depth_corr"] == pytest.approx(1.0)
+
+
+def test_water_intervals_are_converted_like_the_values_and_checked_against_the_truth():
+    from seathru.eval.truth import compare_water
+
+    fitted = {"sigma_attn": [0.2, 0.1, 0.1], "sigma_bs": [0.1, 0.1, 0.1], "c_med": [0.1, 0.2, 0.3]}
+    truth = {"sigma_attn": [0.1, 0.07, 0.5], "sigma_bs": [0.05, 0.05, 0.07],
+             "c_med": [0.2, 0.4, 0.6]}
+    half = {"sigma_attn": [0.02, 0.02, 0.02], "sigma_bs": [0.1, None, 0.01],
+            "c_med": [0.01, 0.01, 0.01]}
+    determined = {k: [True, False, True] for k in half}
+    result = compare_water(fitted, truth, metres_per_unit=2.0, gain=np.array([2.0, 2.0, 2.0]),
+                           halfwidth=half, determined=determined)
+    assert result.fitted["sigma_attn"] == [0.1, 0.05, 0.05]
+    assert np.allclose(result.interval95["sigma_attn"][0], [0.09, 0.11])
+    assert result.contains_truth["sigma_attn"] == [True, False, False]
+    assert result.interval95["sigma_bs"][1] == [0.0, None]          # unbounded above
+    assert result.contains_truth["sigma_bs"] == [True, True, False]
+    assert np.allclose(result.interval95["c_med"][2], [0.58, 0.62])
+    assert result.contains_truth["c_med"] == [True, True, True]
+    assert result.determined == determined

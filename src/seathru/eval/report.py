@@ -15,6 +15,7 @@ import base64
 import json
 import re
 from collections.abc import Mapping, Sequence
+from typing import Any
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -58,7 +59,7 @@ class DatasetRecord:
     summary: EvaluationSummary | None = None
     metrics: pd.DataFrame | None = None
     train_log: pd.DataFrame | None = None
-    water: dict[str, list[float]] | None = None   # fitted water per source unit (water.json)
+    water: dict[str, Any] | None = None   # water.json as written (per source unit)
     warnings: list[dict] = field(default_factory=list)  # {step, code, message, details}
 
 
@@ -219,6 +220,18 @@ def summary_table(records: Sequence[DatasetRecord]) -> pd.DataFrame:
     return table[columns]
 
 
+def water_intervals(record: DatasetRecord) -> tuple[dict | None, dict | None]:
+    """(95% intervals, determined flags) of a dataset's water, in the units of
+    :func:`water_values`; (None, None) when training did not assess them."""
+    truth = record.summary.truth if record.summary else None
+    if truth is not None and truth.water.fitted:
+        return truth.water.interval95, truth.water.determined
+    uncertainty = (record.water or {}).get("uncertainty")
+    if not uncertainty:
+        return None, None
+    return uncertainty.get("interval95"), uncertainty.get("determined")
+
+
 def water_values(record: DatasetRecord) -> tuple[dict | None, dict | None, str]:
     """(fitted, truth, unit) of a dataset's water: in 1/m against the truth where the truth is
     known, else per unit of its own reconstruction; (None, None, "") without either."""
@@ -227,7 +240,7 @@ def water_values(record: DatasetRecord) -> tuple[dict | None, dict | None, str]:
         return truth.water.fitted, truth.water.truth, "1/m"
     if record.water is None:
         return None, None, ""
-    return record.water, None, "1/source unit"
+    return {k: record.water[k] for k in WATER_KEYS if k in record.water}, None, "1/source unit"
 
 
 # ----------------------------------------------------------------------------------------- HTML

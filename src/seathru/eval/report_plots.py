@@ -18,7 +18,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from seathru.eval.report import DatasetRecord, water_values
+from seathru.eval.report import DatasetRecord, water_intervals, water_values
 from seathru.eval.truth import WATER_KEYS
 
 STRIP_COLUMNS = (("gt", "ground truth"), ("full", "full render"), ("restored", "restored"),
@@ -118,7 +118,7 @@ def plot_water_parameters(records: Sequence[DatasetRecord]):
     import matplotlib.pyplot as plt
 
     figure, axes = plt.subplots(1, 3, figsize=(12, 4))
-    entries = [(r.dataset, *water_values(r)) for r in records]
+    entries = [(r.dataset, *water_values(r), *water_intervals(r)) for r in records]
     entries = [e for e in entries if e[1]]
     first_truth = next((i for i, e in enumerate(entries) if e[2]), -1)
     width = 0.8 / 3
@@ -127,14 +127,21 @@ def plot_water_parameters(records: Sequence[DatasetRecord]):
             _empty_axes(ax, "no fitted water parameters")
             ax.set_title(key)
             continue
-        for d, (dataset, fitted, truth, unit) in enumerate(entries):
+        for d, (dataset, fitted, truth, unit, interval, determined) in enumerate(entries):
             values = fitted.get(key)
             if values is None:
                 continue
             for c, value in enumerate(np.ravel(values)[:3]):
                 x = d + (c - 1) * width
-                ax.bar(x, value, width, color=CHANNEL_COLOURS[c],
+                sure = determined is None or determined[key][c]
+                ax.bar(x, value, width, color=CHANNEL_COLOURS[c], alpha=1.0 if sure else 0.35,
+                       hatch=None if sure else "//",
                        label=("R", "G", "B")[c] if d == 0 else None)
+                if interval is not None:
+                    low, high = interval[key][c]
+                    top = high if high is not None else ax.get_ylim()[1]
+                    ax.plot([x, x], [low, top], color="0.25", linewidth=1.2,
+                            linestyle="-" if high is not None else ":")
                 if truth and truth.get(key) is not None:
                     ax.plot([x], [np.ravel(truth[key])[c]], marker="_", color="black",
                             markersize=14, markeredgewidth=2.5,
@@ -146,8 +153,8 @@ def plot_water_parameters(records: Sequence[DatasetRecord]):
         ax.grid(alpha=0.3, axis="y")
     if entries:
         axes[0].legend(fontsize=8)
-    figure.suptitle("Fitted water parameters per channel (black: simulation truth; 1/m where "
-                    "the truth is known)")
+    figure.suptitle("Fitted water per channel: grey lines 95% intervals, hatched bars not "
+                    "determined by the views, black ticks the simulation truth (1/m where known)")
     figure.tight_layout()
     return figure
 

@@ -92,6 +92,9 @@ class WaterComparison:
     truth: dict[str, list[float]]
     fitted: dict[str, list[float]] | None = None
     relative_error: dict[str, list[float | None]] | None = None
+    interval95: dict[str, list[list[float | None]]] | None = None  # converted like ``fitted``
+    contains_truth: dict[str, list[bool]] | None = None
+    determined: dict[str, list[bool]] | None = None   # from water.json's uncertainty
 
 
 @dataclass(kw_only=True)

@@ -111,7 +111,9 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
 
 def compare_water(fitted: Mapping[str, Sequence[float]] | None,
                   truth: Mapping[str, Sequence[float]], metres_per_unit: float,
-                  gain: np.ndarray) -> WaterComparison:
+                  gain: np.ndarray,
+                  halfwidth: Mapping[str, Sequence[float]] | None = None,
+                  determined: Mapping[str, Sequence[bool]] | None = None) -> WaterComparison:
     """The fitted water against the truth, per channel.
 
     Args:
@@ -122,7 +124,9 @@ def compare_water(fitted: Mapping[str, Sequence[float]] | None,
 
     Returns:
         the truth, the fitted values converted to 1/m (divided by ``metres_per_unit``) and to the
-        truth's colour scale (c_med times ``gain``), and the relative error per channel.
+        truth's colour scale (c_med times ``gain``), and the relative error per channel; with
+        ``halfwidth`` (the 95% half-widths of water.json's uncertainty, normalised units) and
+        ``determined``, the converted intervals and whether each holds the truth.
     """
     result = WaterComparison(truth={k: [float(x) for x in truth[k]] for k in WATER_KEYS})
     if fitted is None:
@@ -133,6 +137,22 @@ def compare_water(fitted: Mapping[str, Sequence[float]] | None,
     result.fitted = converted
     result.relative_error = {key: metrics.relative_error(converted[key], truth[key]).tolist()
                              for key in WATER_KEYS}
+    if halfwidth is not None:
+        factor = {"sigma_attn": 1.0 / metres_per_unit, "sigma_bs": 1.0 / metres_per_unit,
+                  "c_med": np.asarray(gain, dtype=np.float64)}
+        result.interval95, result.contains_truth = {}, {}
+        for key in WATER_KEYS:
+            centre = np.asarray(fitted[key], dtype=np.float64)
+            half = np.asarray([np.inf if h is None else h for h in halfwidth[key]],
+                              dtype=np.float64)
+            low = np.maximum(0.0, centre - half) * factor[key]
+            high = (centre + half) * factor[key]
+            result.interval95[key] = [[float(lo), float(hi) if np.isfinite(hi) else None]
+                                      for lo, hi in zip(low, high)]
+            result.contains_truth[key] = [bool(lo <= tr <= hi) for lo, hi, tr in
+                                          zip(low, high, truth[key])]
+        result.determined = {k: [bool(v) for v in determined[k]] for k in WATER_KEYS} \
+            if determined is not None else None
     return result
 
 

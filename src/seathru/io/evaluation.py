@@ -234,6 +234,9 @@ def truth_evaluation(truth_dir: Path, renders: Path, cameras: CameraSet, rows: l
             water=truth("water", view, full), truth_depth=truth("depth", view, full),
             gain=gain, metres_per_unit=scale.scale))
     fitted = None if water is None else water.normalised.as_dict()
-    comparison = truth_eval.compare_water(fitted, read_truth_water(truth_dir / "water.json")
-                                          .as_dict(), scale.scale, gain)
+    uncertainty = None if water is None else water.uncertainty
+    comparison = truth_eval.compare_water(
+        fitted, read_truth_water(truth_dir / "water.json").as_dict(), scale.scale, gain,
+        halfwidth=uncertainty["halfwidth95"] if uncertainty else None,
+        determined=uncertainty["determined"] if uncertainty else None)
     return truth_eval.truth_summary(gain, scale, comparison)

@@ -138,7 +138,7 @@ def _collect(row: pd.Series, results: Path, logs: Path | None, cfg: Settings) ->
     water_path = base / "train" / "water.json"
     if water_path.is_file():
         try:
-            record.water = read_water(water_path).per_source_unit.as_dict()
+            record.water = read_water(water_path).to_dict()
         except PipelineError as exc:
             log.warning("%s", exc)
     selection = (record.summary.medium_selection if record.summary else None) or read_json(

@@ -61,6 +61,7 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     from seathru.io.training import (CHECKPOINT_NAME, load_checkpoint, read_frame_images,
                                      read_snapshots, save_checkpoint, write_log_csv,
                                      write_snapshots)
+    from seathru.io.warnings import step_warning, write_warnings
     from seathru.io.water import WaterReport, write_water
     from seathru.nerf.device import select_device
     from seathru.nerf.prepare import prepare_run, seed_everything
@@ -138,9 +139,13 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     report = WaterReport.from_parameters(model.water_parameters(directions),
                                          float(cameras.scale), trainer.assess_water())
     write_water(out / "water.json", report)
-    if report.undetermined:
-        log.warning("the views do not determine %s (95%% interval wider than +-25%%): the "
-                    "restored images rest on them", ", ".join(report.undetermined))
+    warnings = [step_warning("train", "water_undetermined", (
+        f"the views do not determine {', '.join(report.undetermined)} of the water (95% "
+        "interval wider than +-25%): the restored images rest on them"),
+        parameters=report.undetermined)] if report.undetermined else []
+    for warning in warnings:
+        log.warning("%s", warning["message"])
+    write_warnings(out / "warnings.json", warnings)
     write_log_csv(out / "train_log.csv", result.log)
     write_snapshots(out, snapshots.rows, snapshots.renders, snapshots.downscale)
     write_json(out / "selection.json", {**result.selection, "final_mode": model.medium.mode,
