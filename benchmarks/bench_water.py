@@ -3,8 +3,9 @@
 For every water preset and camera path (orbit: the hard case with no open water; transect;
 survey: open water in every frame) a small dive is simulated and trained on its TRUE cameras
 (so the water, not COLMAP, is what is measured) twice, side by side: with the image cues
-(the water refitted on the model's own surfaces, ``train.medium.refit_at``) and without them
-(``refit_at=[]``). Per parameter and channel: the fitted value, its 95% interval, the truth;
+(the veiling light started at the smoothest image regions' colour, the water refitted on the
+model's own surfaces with open-water rays and the dark-pixel bound: ``train.medium.*``) and
+without them (``refit_at=[]``, ``veiling_light_init=false``). Per parameter and channel: the fitted value, its 95% interval, the truth;
 whether the interval holds the truth; whether a parameter outside 5% was flagged as not
 determined; restored-vs-clean PSNR (linear) on the held-out views, beside the full render's.
 
@@ -33,7 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "src"))
 RESULTS = REPO / "benchmarks" / "results" / "water.md"
 KEYS = ("sigma_attn", "sigma_bs", "c_med")
-VARIANTS = {"cues": [], "no cues": ["--medium.refit-at"]}
+VARIANTS = {"cues": [], "no cues": ["--medium.refit-at", "--no-medium.veiling-light-init"]}
 
 
 def simulate(root: Path, path: str, water: str, args) -> Path:
@@ -114,6 +115,8 @@ def main() -> None:
                                                      "with water)")
     parser.add_argument("--paths", default="orbit,transect,survey")
     parser.add_argument("--variants", default="cues,no cues")
+    parser.add_argument("--no-cues-waters", default="default,coastal_3c",
+                        help="waters also trained without the cues ('all' for every water)")
     parser.add_argument("--jobs", type=int, default=2, help="trainings in parallel")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--work", type=Path, default=None)
@@ -127,7 +130,9 @@ def main() -> None:
     work = args.work or Path(tempfile.mkdtemp(prefix="bench_water_"))
     started = time.time()
     sims = {(p, w): simulate(work, p, w, args) for p in paths for w in waters}
-    jobs = [(key, variant) for key in sims for variant in variants]
+    compare = set(waters) if args.no_cues_waters == "all" else set(args.no_cues_waters.split(","))
+    jobs = [(key, variant) for key in sims for variant in variants
+            if variant != "no cues" or key[1] in compare]
     with ThreadPoolExecutor(args.jobs) as pool:
         outs = list(pool.map(lambda job: train(sims[job[0]], job[1], args), jobs))
     rows = []

@@ -80,6 +80,9 @@ class MediumConfig:
         "exact", help="exact (closed-form integral) or paper (the paper's discretisation)")
     water_before: bool = setting(True, help="integrate the water before the first sample")
     water_after: bool = setting(True, help="integrate the water after the last sample")
+    veiling_light_init: bool = setting(True, help="start the veiling light c_med at the colour "
+                                                  "of the smoothest image regions (open water, "
+                                                  "far haze) instead of the mean image colour")
     refit_at: list[float] = setting(
         default_factory=lambda: [0.15, 0.4],
         help="training progress at which the water is refitted to the images on the model's "

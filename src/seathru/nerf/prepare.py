@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from seathru.errors import PipelineError
 from seathru.nerf.config import TrainConfig, resolve_batch_rays
@@ -63,10 +64,56 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
     colour_max = max(config.field.colour_max, round(2.0 * high, 3))
     config = dataclasses.replace(config, field=dataclasses.replace(config.field,
                                                                   colour_max=colour_max))
+    veiling = veiling_light_estimate(images, masks) if config.medium.veiling_light_init \
+        else None
     scene = scene_from_frames(train_frames, cameras.near, cameras.far, cameras.centre,
-                              cameras.scale, rgb.mean(0).tolist())
+                              cameras.scale, veiling if veiling is not None
+                              else rgb.mean(0).tolist())
     model = SeaThruModel(config, scene).to(device)
     return PreparedRun(config=config, model=model, data=data, test=test)
+
+
+def veiling_light_estimate(images, masks=None, block: int = 4,
+                           share: float = 0.1) -> list[float] | None:
+    """A first guess of the water's veiling light ``c_med`` from the training images.
+
+    Open water and the far, hazy seabed are the smoothest parts of a dive photograph and their
+    colour tends to the veiling light (``I -> c_med`` as the range grows); textured near
+    surfaces are not. The median colour of the smoothest ``share`` of (``block``-averaged,
+    valid) pixels over all images is the guess: a better start for the water than the mean
+    image colour, which lets the object field explain open water with floating surfaces.
+
+    Args:
+        images: linear images (H, W, 3); masks: matching validity masks (H, W) or None.
+        block: averaging block (noise suppression) before the gradients are taken.
+        share: the share of smoothest pixels used.
+
+    Returns:
+        the colour (3 floats), or None when the images are too small.
+    """
+    colours, smoothness = [], []
+    for index, image in enumerate(images):
+        small = F.avg_pool2d(torch.from_numpy(np.ascontiguousarray(image[..., :3],
+                                                                   dtype=np.float32))
+                             .permute(2, 0, 1)[None], block)[0].permute(1, 2, 0)
+        if small.shape[0] < 3 or small.shape[1] < 3:
+            continue
+        dx = (small[1:-1, 2:] - small[1:-1, :-2]).abs().sum(-1)
+        dy = (small[2:, 1:-1] - small[:-2, 1:-1]).abs().sum(-1)
+        level = small[1:-1, 1:-1].sum(-1).clamp_min(1e-4)
+        valid = torch.ones_like(level, dtype=torch.bool)
+        mask = masks[index] if masks is not None and index < len(masks) else None
+        if mask is not None:
+            pooled = F.avg_pool2d(torch.from_numpy(mask.astype(np.float32))[None, None],
+                                  block)[0, 0]
+            valid = pooled[1:-1, 1:-1] >= 1.0 - 1e-4
+        colours.append(small[1:-1, 1:-1][valid])
+        smoothness.append(((dx + dy) / level)[valid])
+    if not colours:
+        return None
+    colour, rough = torch.cat(colours), torch.cat(smoothness)
+    smooth = rough <= torch.quantile(rough[torch.randperm(len(rough))[:500000]], share)
+    return [float(v) for v in colour[smooth].median(0).values]
 
 
 def seed_everything(seed: int) -> None:

@@ -447,11 +447,12 @@ class Trainer:
                        "fitted": {k: getattr(fit, k) for k in WATER_KEYS},
                        "halfwidth95": spread.halfwidth, "accepted": accepted, "after": after})
         kept = sum(not ok for values in accepted.values() for ok in values)
+        note = f"; {kept} of 9 values left as they were: the views do not determine them" \
+            if kept else ""
         self._say(f"step {self.step}: water refitted on {fit.pixels} surface pixels: "
                   f"sigma_attn {_fmt(before['sigma_attn'])} -> {_fmt(after['sigma_attn'])}, "
                   f"sigma_bs {_fmt(before['sigma_bs'])} -> {_fmt(after['sigma_bs'])}, c_med "
-                  f"{_fmt(before['c_med'])} -> {_fmt(after['c_med'])} (normalised; {kept} of 9 "
-                  "values kept: the views do not determine them)")
+                  f"{_fmt(before['c_med'])} -> {_fmt(after['c_med'])} (normalised{note})")
         return record
 
     @torch.no_grad()
