@@ -128,7 +128,7 @@ def test_html_is_self_contained_with_table_plots_and_errors(report):
     assert ERROR_MESSAGE in page and "stage <code>ingest</code>" in page
     assert "stale message" not in page and "first problem" not in page
     images = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page)
-    assert len(images) == 5   # three plots, two strips
+    assert len(images) == 7   # three plots, two frontier figures (final points), two strips
     assert all(base64.b64decode(data)[:8] == b"\x89PNG\r\n\x1a\n" for data in images)
     assert 'src="http' not in page
 

@@ -474,6 +474,15 @@ def config_schema() -> dict:
         "report_partial": {"type": "boolean", "default": False,
                            "description": "set by the workflow when it builds a report over "
                                           "the datasets that finished"},
+        "sweep": {
+            "type": ["object", "null"],
+            "description": "named training variants: name -> options in the sheet's syntax "
+                           "('train.preset=fast; train.max_minutes=1'; train, render and "
+                           "evaluate only); a sheet row's 'sweep' column runs its dataset "
+                           "under them as '<dataset>+<name>'",
+            "propertyNames": {"pattern": "^[A-Za-z0-9][A-Za-z0-9_.-]*$"},
+            "additionalProperties": {"type": ["string", "null"]},
+        },
     }
     for name, cls in steps.items():
         properties[name] = {**json_schema(cls), "type": ["object", "null"]}

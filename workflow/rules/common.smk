@@ -24,8 +24,15 @@ RESERVED_FLAGS = {
     "train": {"cameras", "out", "checkpoint_dir", "threads"},
     "render": {"model", "cameras", "out", "threads"},
     "evaluate": {"renders", "cameras", "train_dir", "truth", "out", "threads"},
-    "report": {"results", "datasets", "logs", "out"},
+    "report": {"results", "datasets", "logs", "out", "variants"},
 }
+# A sweep runs a dataset under named variants of its options (config `sweep`, sheet column
+# `sweep`): `<dataset>+<variant>` is a dataset of its own from train on, on the dataset's
+# simulate / ingest / poses outputs, so a variant may only change the steps after those.
+SWEEP_STEPS = ("train", "render", "evaluate")
+VARIANT_MARK = "+"
+ALL_VARIANTS = "all"
+NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]*"
 
 
 class SheetError(ValueError):
@@ -252,6 +259,76 @@ def check_dataset_options(config, options, where, schema):
         raise SheetError(f"{where}: {listing}")
 
 
+def variant_id(dataset, variant):
+    """The id of a dataset run under a sweep variant: ``variant_id("demo", "fast")`` is
+    ``demo+fast`` (results/demo+fast/, logs/demo+fast/)."""
+    return f"{dataset}{VARIANT_MARK}{variant}"
+
+
+def base_dataset(dataset_id):
+    """The sheet's dataset an id runs on: ``demo+fast`` -> ``demo``, ``demo`` -> ``demo``."""
+    return dataset_id.split(VARIANT_MARK, 1)[0]
+
+
+def parse_sweep(sweep, config, schema, where="config/config.yaml"):
+    """The configuration's ``sweep`` (variant name -> options text in the sheet's syntax) as
+    variant name -> nested options, each checked like a sheet row's options (naming the variant).
+
+    >>> parse_sweep({"fast": "train.preset=fast"}, {}, {"properties": {"train": {}}})
+    {'fast': {'train': {'preset': 'fast'}}}
+    """
+    variants = {}
+    for name, text in (sweep or {}).items():
+        label = f"{where}: sweep variant {name!r}"
+        if not re.fullmatch(NAME_PATTERN, str(name)) or name == ALL_VARIANTS:
+            raise SheetError(f"{label}: a variant's name uses letters, digits, '_', '.', '-' and "
+                             f"is not {ALL_VARIANTS!r}")
+        if text is not None and not isinstance(text, str):
+            raise SheetError(f"{label}: give its options as text, 'step.key=value; ...' (the "
+                             "syntax of the sheet's options column)")
+        options = parse_options(text or "", label)
+        fixed = [step for step in options if step not in SWEEP_STEPS]
+        if fixed:
+            raise SheetError(
+                f"{label}: {fixed[0]} options cannot vary in a sweep (a variant reuses its "
+                f"dataset's simulate, ingest and poses outputs; only {', '.join(SWEEP_STEPS)} "
+                "options may): make another row of the sheet instead")
+        check_dataset_options(config, options, label, schema)
+        variants[str(name)] = options
+    return variants
+
+
+def sweep_variants(cell, variants, where):
+    """The variant names a sheet row's ``sweep`` cell asks for, in order without repeats:
+    comma-separated names, ``all`` (every variant of the configuration) or empty (none)."""
+    names = list(dict.fromkeys(n.strip() for n in str(cell or "").split(",") if n.strip()))
+    if ALL_VARIANTS in names:
+        return list(variants)
+    unknown = [name for name in names if name not in variants]
+    if unknown:
+        known = ", ".join(variants) or "none (config/config.yaml has no 'sweep')"
+        raise SheetError(f"{where}: field 'sweep': {unknown[0]!r} is not a sweep variant; "
+                         f"variants (config/config.yaml 'sweep'): {known}, or {ALL_VARIANTS!r}")
+    return names
+
+
+def sweep_runs(dataset, cell, options, variants, config, schema, where):
+    """The runs a sheet row's ``sweep`` cell adds: ``<dataset>+<variant>`` -> the row's options
+    updated by the variant's (nested sections key by key), checked against the schema."""
+    runs = {}
+    for name in sweep_variants(cell, variants, where):
+        merged = deep_merge(options, variants[name])
+        check_dataset_options(config, merged, f"{where} with sweep variant {name!r}", schema)
+        runs[variant_id(dataset, name)] = merged
+    return runs
+
+
+def sweep_flags(sweep):
+    """The report's ``--variants NAME=OPTIONS ...`` (shell-quoted), or "" without a sweep."""
+    pairs = [f"{name}={text or ''}" for name, text in (sweep or {}).items()]
+    return " ".join(["--variants", *map(shlex.quote, pairs)]) if pairs else ""
+
+
 # ================================================================================ workflow glue
 # Generated from the steps' settings dataclasses ('python -m seathru.settings schema'); read
 # as a file, so the Snakemake process needs no import of the package (conda deployment).
@@ -268,7 +345,7 @@ def load_sheet(path, config):
     if missing:
         raise SheetError(f"{path}: missing column {missing[0]!r}; the sheet needs the columns "
                          "dataset, source, path, options (tab-separated)")
-    options = {}
+    options, runs = {}, {}
     for index, row in sheet.iterrows():
         where = f"{path} row {index + 2} (dataset {row['dataset']!r})"
         if row["source"] not in SOURCES:
@@ -281,18 +358,23 @@ def load_sheet(path, config):
             raise SheetError(f"{where}: field 'path': {row['path']!r} does not exist")
         options[row["dataset"]] = parse_options(row["options"], where)
         check_dataset_options(config, options[row["dataset"]], where, CONFIG_SCHEMA)
+        if "sweep" in sheet.columns:
+            runs.update(sweep_runs(row["dataset"], row["sweep"], options[row["dataset"]],
+                                   VARIANTS, config, CONFIG_SCHEMA, where))
     duplicated = sheet["dataset"][sheet["dataset"].duplicated()].tolist()
     if duplicated:
         raise SheetError(f"{path}: dataset id {duplicated[0]!r} appears more than once")
-    return sheet.set_index("dataset", drop=False), options
+    return sheet.set_index("dataset", drop=False), {**options, **runs}
 
 
 config.update(read_text_values(config, CONFIG_SCHEMA))
 check_config(config, CONFIG_SCHEMA)
 RESULTS = config["results"]
 LOGS = config["logs"]
+VARIANTS = parse_sweep(config.get("sweep"), config, CONFIG_SCHEMA)
 SHEET, OPTIONS = load_sheet(config["datasets"], config)
-DATASETS = list(SHEET.index)
+DATASETS = list(SHEET.index)            # the sheet's rows: every stage
+RUNS = list(OPTIONS)                    # those and each <dataset>+<variant>: train and after
 
 # envs/seathru.post-deploy.sh installs the package from this checkout into the conda
 # environment Snakemake builds; it runs from a copy under .snakemake/conda/ in the working
@@ -300,6 +382,11 @@ DATASETS = list(SHEET.index)
 # process, which hands it this variable (set here, so it is not an `envvars:` the user sets).
 if (Path(workflow.basedir).parent / "pyproject.toml").is_file():
     os.environ.update(SEATHRU_SOURCE_DIR=str(Path(workflow.basedir).parent.resolve()))
+
+
+def id_pattern(ids):
+    """A wildcard constraint matching exactly these dataset ids."""
+    return "|".join(map(re.escape, ids)) if ids else "NO_DATASET"
 
 
 def step_options(dataset, step):
@@ -325,7 +412,16 @@ def rule_resources(rule_name):
 
 
 def source(dataset):
-    return SHEET.loc[dataset, "source"]
+    return SHEET.loc[base_dataset(dataset), "source"]
+
+
+def base_dir(wildcards, stage):
+    """A stage of the dataset a run is on (simulate, ingest, poses: shared by its variants)."""
+    return dataset_dir(base_dataset(wildcards.dataset), stage)
+
+
+def poses_input(wildcards):
+    return base_dir(wildcards, "poses")
 
 
 def dataset_dir(dataset, stage):
@@ -343,8 +439,8 @@ def benchmark_file(stage):
 def evaluated_datasets():
     """Datasets the report waits for: all of them, or in a partial report those that finished."""
     if not config.get("report_partial", False):
-        return DATASETS
-    return [ds for ds in DATASETS if Path(dataset_dir(ds, "evaluate"), "summary.json").exists()]
+        return RUNS
+    return [ds for ds in RUNS if Path(dataset_dir(ds, "evaluate"), "summary.json").exists()]
 
 
 def build_partial_report(log):
@@ -405,15 +501,15 @@ def poses_source_flags(wildcards):
 def evaluate_inputs(wildcards):
     inputs = {
         "renders": dataset_dir(wildcards.dataset, "render"),
-        "poses": dataset_dir(wildcards.dataset, "poses"),
+        "poses": base_dir(wildcards, "poses"),
         "train": rules.train.output.water.format(dataset=wildcards.dataset),
     }
     if source(wildcards.dataset) == "simulated":
-        inputs["simulation"] = dataset_dir(wildcards.dataset, "simulate")
+        inputs["simulation"] = base_dir(wildcards, "simulate")
     return inputs
 
 
 def truth_flag(wildcards):
     if source(wildcards.dataset) == "simulated":
-        return f"--truth {RESULTS}/{wildcards.dataset}/simulate/truth"
+        return f"--truth {shlex.quote(base_dir(wildcards, 'simulate'))}/truth"
     return ""

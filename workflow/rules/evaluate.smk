@@ -10,6 +10,7 @@ rule evaluate:
             labels={"dataset": "{dataset}"},
         ),
         summary=f"{RESULTS}/{{dataset}}/evaluate/summary.json",
+        frontier=f"{RESULTS}/{{dataset}}/evaluate/frontier.csv",
     params:
         out=f"{RESULTS}/{{dataset}}/evaluate",
         train_dir=f"{RESULTS}/{{dataset}}/train",

@@ -1,5 +1,7 @@
 rule export:
     """The cameras for other tools: nerfstudio transforms.json and a COLMAP text model."""
+    wildcard_constraints:
+        dataset=id_pattern(DATASETS),
     input:
         rules.poses.output,
     output:

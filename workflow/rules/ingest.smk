@@ -1,5 +1,7 @@
 rule ingest:
     """Decode RAW or images to linear radiance, normalise exposure, white balance, masks."""
+    wildcard_constraints:
+        dataset=id_pattern(DATASETS),
     input:
         ingest_input,
     output:

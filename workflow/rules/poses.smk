@@ -1,5 +1,7 @@
 rule poses:
     """Camera intrinsics and poses (COLMAP, or the dataset's own), undistorted linear images."""
+    wildcard_constraints:
+        dataset=id_pattern(DATASETS),
     input:
         rules.ingest.output,
     output:

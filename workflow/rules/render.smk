@@ -2,7 +2,7 @@ rule render:
     """Held-out views and a camera path: full, restored, depth, backscatter, direct; videos."""
     input:
         model=rules.train.output.model,
-        poses=rules.poses.output,
+        poses=poses_input,
     output:
         directory(f"{RESULTS}/{{dataset}}/render"),
     params:

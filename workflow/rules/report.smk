@@ -1,5 +1,6 @@
 rule report:
-    """One table and plots across every dataset of the sheet; failed datasets with their error."""
+    """One table and plots across every dataset of the sheet (and its sweep variants); failed
+    datasets with their error; the frontier of quality against time per dataset."""
     input:
         summaries=lambda wildcards: [f"{dataset_dir(ds, 'evaluate')}/summary.json"
                                      for ds in evaluated_datasets()],
@@ -16,15 +17,21 @@ rule report:
                      caption="../report/water_parameters.rst", category="Plots"),
         strips=report(directory(f"{REPORT_DIR}/strips"), patterns=["{name}.png"],
                       caption="../report/strips.rst", category="Image strips"),
+        frontier=report(directory(f"{REPORT_DIR}/frontier"), patterns=["{name}.png"],
+                        caption="../report/frontier.rst", category="Speed against error"),
+        frontier_table=report(f"{REPORT_DIR}/frontier.csv",
+                              caption="../report/frontier_table.rst",
+                              category="Speed against error"),
     params:
         results=lambda wildcards: RESULTS,
         logs=lambda wildcards: LOGS,
         out=lambda wildcards, output: Path(output.table).parent,
         flags=cli_flags(config.get("report") or {}),
+        variants=sweep_flags(config.get("sweep")),
     log:
         f"{LOGS}/report.log",
     conda:
         "../../envs/seathru.yaml"
     shell:
         "seathru report --results {params.results} --datasets {input.sheet} "
-        "--logs {params.logs} --out {params.out} {params.flags} > {log} 2>&1"
+        "--logs {params.logs} --out {params.out} {params.variants} {params.flags} > {log} 2>&1"

@@ -1,5 +1,7 @@
 rule simulate:
     """Synthetic dive scene with known water, cameras and clean images (source: simulated)."""
+    wildcard_constraints:
+        dataset=id_pattern(DATASETS),
     output:
         directory(f"{RESULTS}/{{dataset}}/simulate"),
     params:

@@ -1,7 +1,7 @@
 rule train:
     """Fit the SeaThru-NeRF model; resumes from results/<dataset>/checkpoints/ after a kill."""
     input:
-        rules.poses.output,
+        poses_input,
     output:
         model=f"{RESULTS}/{{dataset}}/train/model.pt",
         water=f"{RESULTS}/{{dataset}}/train/water.json",

@@ -61,6 +61,9 @@ class DatasetRecord:
     train_log: pd.DataFrame | None = None
     water: dict[str, Any] | None = None   # water.json as written (per source unit)
     warnings: list[dict] = field(default_factory=list)  # {step, code, message, details}
+    base: str = ""                      # the sheet's dataset a sweep run is on ("" = itself)
+    variant: str = ""                   # its sweep variant ("" for the sheet's own row)
+    frontier: pd.DataFrame | None = None   # evaluate/frontier.csv (seathru.io.frontier)
 
 
 def diagnose_failure(logs: Sequence[StepLog], step_order: Sequence[str]) -> tuple[str | None, str]:
@@ -272,14 +275,18 @@ def _template():
 
 
 def render_html(table: pd.DataFrame, records: Sequence[DatasetRecord],
-                plots: Mapping[str, bytes], strips: Mapping[str, bytes], generated: str) -> str:
+                plots: Mapping[str, bytes], strips: Mapping[str, bytes], generated: str,
+                frontier: pd.DataFrame | None = None,
+                fronts: Mapping[str, bytes] | None = None) -> str:
     """The self-contained report page: the summary table, failures, water against the truth,
-    and the plots and image strips (PNG bytes) inlined.
+    quality against time, and the plots and image strips (PNG bytes) inlined.
 
     Args:
         table: from :func:`summary_table`.
         plots: file name -> PNG; strips: dataset -> PNG.
         generated: the time stamp shown on the page.
+        frontier: one row per run (``seathru.eval.frontier.frontier_summary``); fronts:
+            dataset -> PNG of its frontier figure.
     """
     by_name = {record.dataset: record for record in records}
     rows = []
@@ -303,4 +310,9 @@ def render_html(table: pd.DataFrame, records: Sequence[DatasetRecord],
         columns=list(table.columns), rows=rows, records=records,
         failures=[r for r in records if r.status != "ok"], water_rows=water_rows,
         flagged=[r for r in records if r.warnings],
-        plots=plots, strips=strips, generated=generated)
+        plots=plots, strips=strips, generated=generated,
+        frontier_columns=[] if frontier is None else list(frontier.columns),
+        frontier_rows=[] if frontier is None else [
+            [None if not isinstance(v, str) and pd.isna(v) else v for v in row]
+            for row in frontier.itertuples(index=False)],
+        fronts=fronts or {})

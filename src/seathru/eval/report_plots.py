@@ -4,6 +4,9 @@ one to PNG bytes and closes it). No file I/O.
 - :func:`plot_psnr_vs_time`: held-out PSNR during training against training time, per dataset;
 - :func:`plot_speed_vs_error`: render frames per second and training time against held-out PSNR;
 - :func:`plot_water_parameters`: fitted water parameters per dataset and channel, truth markers;
+- :func:`plot_frontier`: one dataset's runs (its sheet row and sweep variants): held-out PSNR
+  (and restored-vs-clean) of every snapshot against training time, and the final PSNR against
+  render time per frame, each with its Pareto front;
 - :func:`plot_strip`: ground truth | full render | restored | depth | backscatter for a few
   held-out views of one dataset.
 
@@ -18,6 +21,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from seathru.eval.frontier import final_point, pareto_front, snapshot_curve
 from seathru.eval.report import DatasetRecord, water_intervals, water_values
 from seathru.eval.truth import WATER_KEYS
 
@@ -155,6 +159,89 @@ def plot_water_parameters(records: Sequence[DatasetRecord]):
         axes[0].legend(fontsize=8)
     figure.suptitle("Fitted water per channel: grey lines 95% intervals, hatched bars not "
                     "determined by the views, black ticks the simulation truth (1/m where known)")
+    figure.tight_layout()
+    return figure
+
+
+def _front_line(axes, times, values, x_end, **style) -> None:
+    """The Pareto front of ``(times, values)`` as a staircase held to ``x_end``."""
+    front = pareto_front(times, values)
+    if len(front):
+        xs, ys = np.asarray(times)[front], np.asarray(values)[front]
+        axes.step([*xs, max(x_end, xs[-1])], [*ys, ys[-1]], where="post", **style)
+
+
+def _log_if_wide(axes, values) -> None:
+    values = [v for v in values if v is not None and v > 0]
+    if values and max(values) > 10 * min(values):   # a log axis pays off over a decade or more
+        axes.set_xscale("log")
+
+
+def plot_frontier(dataset: str, runs: Sequence[DatasetRecord]):
+    """One dataset's runs on the same axes, or None when none has a snapshot or a final point.
+
+    Left: held-out PSNR on whole images (snapshots, ``frontier.csv``) against training time, per
+    run, with restored-vs-clean where the truth is known (dashed); a run without snapshots shows
+    its final evaluation (star); black: the Pareto front of the held-out PSNR (the best any run
+    reached within that time), grey dashed: that of restored-vs-clean. Right: final held-out PSNR
+    (full resolution) against render time per frame, restored-vs-clean hollow, with the front.
+    """
+    import matplotlib.pyplot as plt
+
+    curves = [(r, *snapshot_curve(r), snapshot_curve(r, "restored_psnr_linear"), final_point(r))
+              for r in runs]
+    if not any(len(c[1]) or c[4]["psnr_linear"] is not None for c in curves):
+        return None
+    figure, (left, right) = plt.subplots(1, 2, figsize=(11.5, 4.4))
+    points = {"held": ([], []), "restored": ([], [])}
+    for index, (record, times, psnr, (r_times, restored), final) in enumerate(curves):
+        colour, label = f"C{index % 10}", record.dataset
+        if len(times):
+            left.plot(times, psnr, "-o", ms=4, color=colour, label=label)
+            points["held"][0].extend(times)
+            points["held"][1].extend(psnr)
+        elif final["psnr_linear"] is not None and final["train_time_s"]:
+            left.plot([final["train_time_s"]], [final["psnr_linear"]], "*", ms=11,
+                      color=colour, label=f"{label} (final only)")
+        if len(r_times):
+            left.plot(r_times, restored, "--^", ms=4, color=colour, alpha=0.7,
+                      label=f"{label}: restored vs clean")
+            points["restored"][0].extend(r_times)
+            points["restored"][1].extend(restored)
+        if final["psnr_linear"] is not None and final["render_s_per_frame"]:
+            right.plot([final["render_s_per_frame"]], [final["psnr_linear"]], "o", ms=8,
+                       color=colour, label=label)
+            if final["restored_psnr_linear"] is not None:
+                right.plot([final["render_s_per_frame"]], [final["restored_psnr_linear"]], "^",
+                           ms=8, mfc="none", color=colour)
+    x_end = max([max(xs) for xs, _ in points.values() if xs] or [1.0])
+    _front_line(left, *points["held"], x_end, color="black", lw=1.5, alpha=0.8,
+                label="Pareto front (held-out)")
+    _front_line(left, *points["restored"], x_end, color="0.5", lw=1.2, ls="--",
+                label="Pareto front (restored)")
+    _log_if_wide(left, [*points["held"][0], *points["restored"][0]])
+    left.set_xlabel("training time (s)")
+    left.set_ylabel("PSNR, linear (dB)")
+    left.set_title("Snapshots: held-out whole images (solid), restored vs clean (dashed)",
+                   fontsize=9)
+    left.grid(alpha=0.3, which="both")
+    left.legend(fontsize=7)
+    finals = [(c[4]["render_s_per_frame"], c[4]["psnr_linear"]) for c in curves
+              if c[4]["psnr_linear"] is not None and c[4]["render_s_per_frame"]]
+    if finals:
+        xs, ys = zip(*finals)
+        _front_line(right, xs, ys, max(xs), color="black", lw=1.5, alpha=0.8,
+                    label="Pareto front")
+        _log_if_wide(right, xs)
+        right.set_xlabel("render time per frame (s, held-out views)")
+        right.set_ylabel("final held-out PSNR, linear (dB)")
+        right.set_title("Final evaluation (restored vs clean: hollow)", fontsize=9)
+        right.grid(alpha=0.3, which="both")
+        right.legend(fontsize=7)
+    else:
+        _empty_axes(right, "no render times")
+    figure.suptitle(f"{dataset}: quality against time ({len(runs)} run"
+                    f"{'s' if len(runs) != 1 else ''})")
     figure.tight_layout()
     return figure
 

@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from seathru.errors import PipelineError
+from seathru.eval import summary as dataset_summary
 from seathru.eval import truth as truth_eval
 from seathru.eval.summary import (VIEW_COLUMNS, EvaluationSummary, TruthSummary, ViewMetrics,
                                   metrics_table)
@@ -192,6 +193,20 @@ def read_lpips_weights(path: str | os.PathLike) -> dict | None:
         if isinstance(loaded, dict):
             state.update(loaded)
     return state
+
+
+def load_lpips(path: str | os.PathLike | None):
+    """``(network or None, status text)`` of ``seathru.eval.summary.lpips_network`` for the
+    weights at ``path`` (None: not configured).
+
+    Raises:
+        PipelineError: naming ``--lpips-weights`` when the weights do not fit the network.
+    """
+    weights = None if path is None else read_lpips_weights(path)
+    try:
+        return dataset_summary.lpips_network(weights, path)
+    except ValueError as exc:
+        raise PipelineError(f"--lpips-weights {path}: {exc}") from None
 
 
 # ----------------------------------------------------------------- against the simulator's truth

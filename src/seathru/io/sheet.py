@@ -31,3 +31,54 @@ def read_sheet(path: str | os.PathLike) -> pd.DataFrame:
         raise PipelineError(f"{path}: no 'dataset' column; the sheet is tab-separated with a "
                             f"header row (found columns {list(sheet.columns)})")
     return sheet[sheet["dataset"].str.strip() != ""]
+
+
+VARIANT_MARK = "+"      # <dataset>+<variant>, as workflow/rules/common.smk names a sweep's runs
+ALL_VARIANTS = "all"
+
+
+def variant_options(pairs: list[str] | None) -> dict[str, str]:
+    """The report's ``--variants NAME=OPTIONS ...`` (the configuration's ``sweep``) as
+    name -> options text.
+
+    Raises:
+        PipelineError: a pair without ``=``.
+    """
+    variants = {}
+    for pair in pairs or []:
+        name, sep, options = pair.partition("=")
+        if not sep or not name.strip():
+            raise PipelineError(f"--variants {pair!r}: expected NAME=OPTIONS")
+        variants[name.strip()] = options.strip()
+    return variants
+
+
+def expand_sweeps(sheet: pd.DataFrame, variants: dict[str, str],
+                  source: str | os.PathLike = "the dataset sheet") -> pd.DataFrame:
+    """The sheet's rows, each followed by the runs its ``sweep`` column asks for (comma-separated
+    variant names, or ``all``), as the workflow runs them: ``dataset`` is ``<dataset>+<variant>``
+    and ``options`` the row's options then the variant's. Adds the columns ``base`` (the sheet's
+    dataset) and ``variant`` ("" on the sheet's own rows).
+
+    Raises:
+        PipelineError: naming the sheet and the dataset when a variant is not in ``variants``.
+    """
+    rows = []
+    for _, row in sheet.iterrows():
+        base = {**row.to_dict(), "base": row["dataset"], "variant": ""}
+        rows.append(base)
+        cell = str(row.get("sweep", "") or "")
+        names = list(dict.fromkeys(n.strip() for n in cell.split(",") if n.strip()))
+        if ALL_VARIANTS in names:
+            names = list(variants)
+        for name in names:
+            if name not in variants:
+                raise PipelineError(f"{source}: dataset {row['dataset']!r}: sweep variant "
+                                    f"{name!r} is not given (--variants: "
+                                    f"{', '.join(variants) or 'none'})")
+            options = "; ".join(part for part in (str(row.get("options", "")).strip(),
+                                                  variants[name]) if part)
+            rows.append({**base, "dataset": f"{row['dataset']}{VARIANT_MARK}{name}",
+                         "options": options, "variant": name})
+    columns = [*sheet.columns, "base", "variant"]
+    return pd.DataFrame(rows, columns=columns).fillna("")

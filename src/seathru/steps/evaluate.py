@@ -16,8 +16,10 @@ the restored render: CIEDE2000 and grey angular error (``seathru.io.chart``). Wi
 (a simulated dataset's ``simulate/truth``): restored renders against the clean truth, depth and
 water (``seathru.io.evaluation.truth_evaluation``).
 
-Writes ``metrics.csv`` (one row per held-out view) and ``summary.json`` (means, render speed,
-training time, fitted water, the medium selection, protocol and chart results) to ``--out``.
+Writes ``metrics.csv`` (one row per held-out view), ``summary.json`` (means, render speed,
+training time, fitted water, the medium selection, protocol and chart results) and
+``frontier.csv`` (quality against training time from the train step's snapshots, scored against
+the truth when there is one: ``seathru.io.frontier``) to ``--out``.
 """
 
 from __future__ import annotations
@@ -33,9 +35,9 @@ from seathru.errors import PipelineError
 from seathru.eval import summary as dataset_summary
 from seathru.io.cameras import CameraSet, Frame, read_cameras
 from seathru.io.chart import evaluate_colour_chart, find_annotation
-from seathru.io.evaluation import (read_lpips_weights, read_render, read_train_log,
-                                   resized_like, truth_evaluation, write_metrics,
-                                   write_summary)
+from seathru.io.evaluation import (load_lpips, read_render, read_train_log, resized_like,
+                                   truth_evaluation, write_metrics, write_summary)
+from seathru.io.frontier import FRONTIER_NAME, frontier_table, write_frontier
 from seathru.io.atomic import write_json
 from seathru.io.images import read_image
 from seathru.io.jsonfile import json_safe, read_json
@@ -99,11 +101,7 @@ def run(args: argparse.Namespace) -> None:
         raise PipelineError(f"{args.cameras}: no frame has split 'test'; nothing to evaluate")
     if not args.renders.is_dir():
         raise PipelineError(f"{args.renders}: render folder not found; run the 'render' step")
-    weights = None if cfg.lpips_weights is None else read_lpips_weights(cfg.lpips_weights)
-    try:
-        lpips_net, lpips_status = dataset_summary.lpips_network(weights, cfg.lpips_weights)
-    except ValueError as exc:
-        raise PipelineError(f"--lpips-weights {cfg.lpips_weights}: {exc}") from None
+    lpips_net, lpips_status = load_lpips(cfg.lpips_weights)
 
     rows = []
     for frame in views:
@@ -138,6 +136,7 @@ def run(args: argparse.Namespace) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     write_metrics(args.out / "metrics.csv", table)
     write_summary(args.out / "summary.json", summary)
+    write_frontier(args.out / FRONTIER_NAME, frontier_table(args.train_dir, args.truth, truth))
     if chart.get("source") != "none":
         write_json(args.out / "colour_chart.json", json_safe(chart))
     log.info("%s: mean PSNR %.2f dB over %d views", dataset, table["psnr_linear"].mean(),

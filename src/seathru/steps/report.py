@@ -1,9 +1,12 @@
 """One table and plots across every dataset of the sheet; failed datasets with their error.
 
-Reads, for each dataset id of the sheet, ``RESULTS/<dataset>/evaluate/summary.json`` and
-``metrics.csv``, ``RESULTS/<dataset>/train/train_log.csv`` and ``water.json``, and the render
-step's display images ``RESULTS/<dataset>/render/test/<view>/*.png``. A dataset without a
-summary is listed as failed, with the stage and message of the last ``seathru <step>: error:``
+Reads, for each dataset id of the sheet and each of its sweep runs ``<dataset>+<variant>`` (the
+sheet's ``sweep`` column; ``--variants`` gives the configuration's variants:
+``seathru.io.sheet.expand_sweeps``), ``RESULTS/<dataset>/evaluate/summary.json``,
+``metrics.csv`` and ``frontier.csv``, ``RESULTS/<dataset>/train/train_log.csv`` and
+``water.json``, and the render step's display images
+``RESULTS/<dataset>/render/test/<view>/*.png`` (``seathru.io.report_inputs``). A dataset without
+a summary is listed as failed, with the stage and message of the last ``seathru <step>: error:``
 line found in its logs (``LOGS/<dataset>/<step>.log``, the most recently written log that has
 one), or the last line of its newest log when none has such a line.
 
@@ -21,6 +24,10 @@ Writes to ``--out``:
 - ``psnr_vs_time.png``: held-out PSNR during training against training time, per dataset;
 - ``speed_vs_error.png``: render frames per second and training time against held-out PSNR;
 - ``water_parameters.png``: fitted water parameters per dataset and channel, truth markers;
+- ``frontier/<dataset>.png``: per sheet dataset, its runs (the row and its sweep variants) on
+  the same axes: snapshot PSNR against training time and final PSNR against render time, with
+  the Pareto fronts (``seathru.eval.frontier``); ``frontier.csv``: one row per run, with the
+  time it needed to get within 0.5 dB of its own final PSNR;
 - ``strips/<dataset>.png``: ground truth | full render | restored | depth | backscatter for a
   few held-out views.
 """
@@ -33,20 +40,13 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-import pandas as pd
-
 from seathru import settings
-from seathru.errors import PipelineError
 from seathru.eval import report_plots as plots
-from seathru.eval.report import (DatasetRecord, StepLog, diagnose_failure, render_html,
-                                 stopped_by, summary_table, training_warnings)
+from seathru.eval.frontier import frontier_summary, runs_by_dataset
+from seathru.eval.report import render_html, summary_table
 from seathru.io.atomic import atomic_dir, write_bytes, write_text
-from seathru.io.evaluation import read_metrics, read_summary, read_train_log
-from seathru.io.images import read_image
-from seathru.io.jsonfile import read_json
-from seathru.io.sheet import read_sheet
-from seathru.io.warnings import read_dataset_warnings
-from seathru.io.water import read_water
+from seathru.io.report_inputs import collect_record, read_strip_images
+from seathru.io.sheet import expand_sweeps, read_sheet, variant_options
 from seathru.settings import setting
 from seathru.steps import STEP_ORDER
 
@@ -80,6 +80,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="logs folder (<dataset>/<step>.log): error messages of failed "
                              "datasets")
     parser.add_argument("--out", required=True, type=Path, help="output folder")
+    parser.add_argument("--variants", nargs="+", default=None, metavar="NAME=OPTIONS",
+                        help="the sweep variants the sheet's 'sweep' column names (the "
+                             "configuration's 'sweep', passed by the workflow)")
     settings.add_arguments(parser, Settings)
 
 
@@ -88,12 +91,15 @@ def run(args: argparse.Namespace) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
-    sheet = read_sheet(args.datasets)
-    records = [_collect(row, args.results, args.logs, cfg) for _, row in sheet.iterrows()]
-    table = summary_table(records)
+    sheet = expand_sweeps(read_sheet(args.datasets), variant_options(args.variants),
+                          args.datasets)
+    records = [collect_record(row, args.results, args.logs, STEP_ORDER, cfg.rising_psnr_db,
+                              cfg.rising_window) for _, row in sheet.iterrows()]
+    table, frontier = summary_table(records), frontier_summary(records)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     write_text(out / "summary.csv", table.to_csv(index=False, float_format="%.6g"))
+    write_text(out / "frontier.csv", frontier.to_csv(index=False, float_format="%.6g"))
 
     figures = {"psnr_vs_time.png": plots.plot_psnr_vs_time(records),
                "speed_vs_error.png": plots.plot_speed_vs_error(records),
@@ -101,70 +107,24 @@ def run(args: argparse.Namespace) -> None:
     pngs = {name: plots.figure_png(figure) for name, figure in figures.items()}
     for name, png in pngs.items():
         write_bytes(out / name, png)
+    fronts = {}
+    with atomic_dir(out / "frontier") as tmp:
+        for dataset, runs in runs_by_dataset(records).items():
+            if (figure := plots.plot_frontier(dataset, runs)) is not None:
+                fronts[dataset] = plots.figure_png(figure)
+                write_bytes(tmp / f"{dataset}.png", fronts[dataset])
     strips = {}
     with atomic_dir(out / "strips") as tmp:
         for record in records:
-            images = _strip_images(args.results / record.dataset, cfg.strip_views)
+            images = read_strip_images(args.results / record.dataset, cfg.strip_views)
             figure = plots.plot_strip(record, images, cfg.strip_height)
             if figure is not None:
                 strips[record.dataset] = plots.figure_png(figure)
                 write_bytes(tmp / f"{record.dataset}.png", strips[record.dataset])
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    write_text(out / "summary.html", render_html(table, records, pngs, strips, stamp))
+    write_text(out / "summary.html", render_html(table, records, pngs, strips, stamp,
+                                                 frontier, fronts))
     failed = [r.dataset for r in records if r.status != "ok"]
     log.info("report: %d datasets, %d without results%s, %d with warnings", len(records),
              len(failed), f" ({', '.join(failed)})" if failed else "",
              sum(bool(r.warnings) for r in records))
-
-
-def _collect(row: pd.Series, results: Path, logs: Path | None, cfg: Settings) -> DatasetRecord:
-    """What the report shows about one dataset of the sheet, read from its results."""
-    dataset = str(row["dataset"]).strip()
-    base = Path(results) / dataset
-    record = DatasetRecord(dataset, source=row.get("source", ""), options=row.get("options", ""))
-    summary_path = base / "evaluate" / "summary.json"
-    try:
-        record.summary = read_summary(summary_path) if summary_path.is_file() else None
-    except PipelineError as exc:   # a damaged summary fails this dataset, not the report
-        record.status, record.failed_step, record.error = "failed", "evaluate", str(exc)
-    if record.summary is None and record.status == "ok":
-        record.status = "failed"
-        record.failed_step, record.error = diagnose_failure(_step_logs(logs, dataset),
-                                                            STEP_ORDER)
-    metrics_path = base / "evaluate" / "metrics.csv"
-    if record.summary is not None and metrics_path.is_file():
-        record.metrics = read_metrics(metrics_path)
-    record.train_log = read_train_log(base / "train" / "train_log.csv")
-    water_path = base / "train" / "water.json"
-    if water_path.is_file():
-        try:
-            record.water = read_water(water_path).to_dict()
-        except PipelineError as exc:
-            log.warning("%s", exc)
-    selection = (record.summary.medium_selection if record.summary else None) or read_json(
-        base / "train" / "selection.json", missing_ok=True)
-    train_log = [s for s in _step_logs(logs, dataset) if s.step == "train"]
-    record.warnings = read_dataset_warnings(base, STEP_ORDER) + training_warnings(
-        selection, record.train_log, stopped_by(train_log[0].lines) if train_log else None,
-        cfg.rising_psnr_db, cfg.rising_window)
-    record.warnings.sort(key=lambda w: STEP_ORDER.index(w["step"]) if w["step"] in STEP_ORDER
-                         else len(STEP_ORDER))
-    return record
-
-
-def _step_logs(logs: Path | None, dataset: str) -> list[StepLog]:
-    folder = None if logs is None else Path(logs) / dataset
-    if folder is None or not folder.is_dir():
-        return []
-    return [StepLog(path.stem, path.stat().st_mtime,
-                    path.read_text(errors="replace").splitlines())
-            for path in folder.glob("*.log")]
-
-
-def _strip_images(base: Path, count: int) -> dict[str, dict]:
-    """view -> {strip column -> display image or None} for the views shown in the strip."""
-    test_dir = base / "render" / "test"
-    available = [p.name for p in test_dir.iterdir() if p.is_dir()] if test_dir.is_dir() else []
-    return {view: {name: read_image(path) if (path := test_dir / view / f"{name}.png").is_file()
-                   else None for name, _ in plots.STRIP_COLUMNS}
-            for view in plots.strip_views(available, count)}

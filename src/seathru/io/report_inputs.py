@@ -1,0 +1,101 @@
+"""What the report step reads about one dataset (or one sweep run) from its results and logs.
+
+For ``RESULTS/<dataset>/``: ``evaluate/summary.json``, ``metrics.csv`` and ``frontier.csv``,
+``train/train_log.csv``, ``water.json`` and ``selection.json``, each step's ``warnings.json``
+and the render step's display images ``render/test/<view>/*.png``; ``LOGS/<dataset>/<step>.log``
+for why a dataset without results failed. Everything lands in a
+:class:`seathru.eval.report.DatasetRecord`.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+
+import pandas as pd
+
+from seathru.errors import PipelineError
+from seathru.eval.report import (DatasetRecord, StepLog, diagnose_failure, stopped_by,
+                                 training_warnings)
+from seathru.eval.report_plots import STRIP_COLUMNS, strip_views
+from seathru.io.evaluation import read_metrics, read_summary, read_train_log
+from seathru.io.frontier import FRONTIER_NAME, read_frontier
+from seathru.io.images import read_image
+from seathru.io.jsonfile import read_json
+from seathru.io.warnings import read_dataset_warnings
+from seathru.io.water import read_water
+
+log = logging.getLogger(__name__)
+
+
+def collect_record(row: pd.Series, results: Path, logs: Path | None, step_order: Sequence[str],
+                   rising_db: float = 1.0, window: float = 0.2) -> DatasetRecord:
+    """What the report shows about one row of the (sweep-expanded) sheet, from its results.
+
+    Args:
+        row: ``dataset`` and, when present, ``source``, ``options``, ``base``, ``variant``
+            (``seathru.io.sheet.expand_sweeps``).
+        results, logs: the results and logs folders.
+        step_order: the pipeline's steps in order (failure diagnosis, warning order).
+        rising_db, window: the ``not_converged`` warning's threshold
+            (``seathru.eval.report.training_warnings``).
+    """
+    dataset = str(row["dataset"]).strip()
+    base = Path(results) / dataset
+    record = DatasetRecord(dataset, source=row.get("source", ""), options=row.get("options", ""),
+                           base=str(row.get("base", "") or dataset),
+                           variant=str(row.get("variant", "") or ""))
+    summary_path = base / "evaluate" / "summary.json"
+    try:
+        record.summary = read_summary(summary_path) if summary_path.is_file() else None
+    except PipelineError as exc:   # a damaged summary fails this dataset, not the report
+        record.status, record.failed_step, record.error = "failed", "evaluate", str(exc)
+    if record.summary is None and record.status == "ok":
+        record.status = "failed"
+        record.failed_step, record.error = diagnose_failure(read_step_logs(logs, dataset),
+                                                            step_order)
+    metrics_path = base / "evaluate" / "metrics.csv"
+    if record.summary is not None and metrics_path.is_file():
+        record.metrics = read_metrics(metrics_path)
+    frontier_path = base / "evaluate" / FRONTIER_NAME
+    if record.summary is not None and frontier_path.is_file():
+        try:
+            record.frontier = read_frontier(frontier_path)
+        except PipelineError as exc:   # the frontier is left out, the dataset stays
+            log.warning("%s", exc)
+    record.train_log = read_train_log(base / "train" / "train_log.csv")
+    water_path = base / "train" / "water.json"
+    if water_path.is_file():
+        try:
+            record.water = read_water(water_path).to_dict()
+        except PipelineError as exc:
+            log.warning("%s", exc)
+    selection = (record.summary.medium_selection if record.summary else None) or read_json(
+        base / "train" / "selection.json", missing_ok=True)
+    train_log = [s for s in read_step_logs(logs, dataset) if s.step == "train"]
+    record.warnings = read_dataset_warnings(base, step_order) + training_warnings(
+        selection, record.train_log, stopped_by(train_log[0].lines) if train_log else None,
+        rising_db, window)
+    record.warnings.sort(key=lambda w: step_order.index(w["step"]) if w["step"] in step_order
+                         else len(step_order))
+    return record
+
+
+def read_step_logs(logs: Path | None, dataset: str) -> list[StepLog]:
+    """The step logs ``LOGS/<dataset>/*.log`` of a dataset ([] without any)."""
+    folder = None if logs is None else Path(logs) / dataset
+    if folder is None or not folder.is_dir():
+        return []
+    return [StepLog(path.stem, path.stat().st_mtime,
+                    path.read_text(errors="replace").splitlines())
+            for path in folder.glob("*.log")]
+
+
+def read_strip_images(dataset_dir: Path, count: int) -> dict[str, dict]:
+    """view -> {strip column -> display image or None} for the views shown in the strip."""
+    test_dir = dataset_dir / "render" / "test"
+    available = [p.name for p in test_dir.iterdir() if p.is_dir()] if test_dir.is_dir() else []
+    return {view: {name: read_image(path) if (path := test_dir / view / f"{name}.png").is_file()
+                   else None for name, _ in STRIP_COLUMNS}
+            for view in strip_views(available, count)}
