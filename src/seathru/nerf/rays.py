@@ -101,18 +101,7 @@ def covisible_box(frames, min_fraction: float = 0.5, grid: tuple[int, int] = (16
         ts = np.geomspace(near, far, depths)
         points.append((o[0][None, None, :] + d[:, None, :] * ts[None, :, None]).reshape(-1, 3))
     points = np.concatenate(points)
-    counts = np.zeros(len(points), dtype=np.int64)
-    for f in frames:
-        w2c = np.linalg.inv(f.c2w_array)
-        cam = points @ w2c[:3, :3].T + w2c[:3, 3]
-        z = cam[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = f.fx * cam[:, 0] / z + f.cx
-            v = f.fy * cam[:, 1] / z + f.cy
-        dist = np.linalg.norm(cam, axis=-1)
-        seen = (z > 0) & (u >= 0) & (u < f.width) & (v >= 0) & (v < f.height) \
-            & (dist >= f.near) & (dist <= f.far)
-        counts += seen
+    counts = view_counts(points, frames)
     needed = max(2, int(np.ceil(min_fraction * len(frames)))) if len(frames) > 1 else 1
     core = points[counts >= needed]
     if len(core) < 16:  # too few views overlap: take the near half of every frustum instead
