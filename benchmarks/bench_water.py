@@ -161,7 +161,7 @@ def _summary(rows: list[dict], variant: str) -> str:
 def write_results(rows: list[dict], args, seconds: float) -> None:
     lines = ["# Water benchmark (`benchmarks/bench_water.py`)", "",
              f"Dives of {args.views} views at {args.width}x{args.height}, trained on their true "
-             f"cameras for {args.minutes:g} min each (1 CPU thread, two runs side by side); "
+             f"cameras for {args.minutes:g} min each (1 CPU thread each, {args.jobs} run(s) at a time); "
              "errors per channel (R, G, B); interval: 95% from water.json's uncertainty; "
              "`?` = flagged as not determined by the views.", ""]
     for variant in dict.fromkeys(r["variant"] for r in rows):
