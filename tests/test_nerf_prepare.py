@@ -33,3 +33,14 @@ def test_masked_pixels_are_left_out():
     estimate = np.array(veiling_light_estimate([image], [mask]))
     assert np.allclose(estimate, WATER, atol=0.01), estimate
     assert veiling_light_estimate([np.zeros((4, 4, 3), np.float32)]) is None
+
+
+def test_smooth_regions_of_many_colours_are_no_veiling_light():
+    rng = np.random.default_rng(2)
+    images = []
+    for _ in range(3):
+        image = rng.uniform(0.0, 0.8, size=(96, 128, 3)).astype(np.float32)
+        for row in range(0, 96, 16):          # flat patches of different colours: clear water
+            image[row:row + 8, :64] = rng.uniform(0.1, 0.9, size=3)
+        images.append(image)
+    assert veiling_light_estimate(images) is None

@@ -313,7 +313,12 @@ class Trainer:
         else:
             depth = float(self.model.scene.get("typical_range", 1.0))
         attenuation = 1.0 - math.exp(-max(water["sigma_attn"]) * depth)
-        open_water = float((rendered["opacity"] < 0.1).float().mean())
+        # open water: rays that meet no surface AND whose pixel is the veiling light itself; an
+        # empty ray whose pixel differs (textured seabed explained by water) is no evidence
+        c_med = torch.tensor(water["c_med"], device=rendered["rgb"].device)
+        observed = self.probe.rgb.to(c_med.device)
+        matches = ((observed - c_med).abs() / c_med.clamp_min(0.02)).amax(-1) < 0.15
+        open_water = float(((rendered["opacity"] < 0.1) & matches).float().mean())
         far = self.probe.far.to(rendered["depth_median"].device)
         wall = float(((rendered["opacity"] > 0.5) & (rendered["depth_median"] > 0.95 * far))
                      .float().mean())
@@ -323,7 +328,8 @@ class Trainer:
             "sigma_attn", [0.0])) * depth)
         evidence = [text for present, text in (
             (open_water > c.medium.auto_open_water_share,
-             f"{100 * open_water:.1f}% of the rays meet no surface (open water)"),
+             f"{100 * open_water:.1f}% of the rays meet no surface and show the veiling light "
+             "(open water)"),
             (wall > c.medium.auto_open_water_share,
              f"{100 * wall:.1f}% of the rays end in a density wall at the far bound"),
             (determined and surface_attenuation > 2 * c.medium.auto_attenuation,
