@@ -37,10 +37,29 @@ BIN = Path(sys.executable).parent
 TEST_CONFIG = REPO_ROOT / ".test"
 
 
+def write_bad_raw(folder: Path) -> None:
+    """The corrupt RAW files of the ``bad_raw`` dataset (see .test/bad_raw/README.md)."""
+    import numpy as np
+
+    from seathru.io.dng import write_dng
+
+    folder.mkdir(parents=True, exist_ok=True)
+    whole = folder / "whole.dng"
+    mosaic = np.random.default_rng(0).integers(2000, 15000, size=(48, 64), dtype=np.uint16)
+    write_dng(whole, mosaic, black_level=1024, white_level=16383, exposure_time_s=0.01, iso=200,
+              f_number=4.0)
+    data = whole.read_bytes()
+    (folder / "truncated.dng").write_bytes(data[:len(data) // 2])
+    whole.unlink()
+    (folder / "not_a_raw.nef").write_text("this is not a raw file\n")
+    (folder / "empty.cr2").write_bytes(b"")
+
+
 def _copy_test_configuration(workdir: Path) -> None:
-    """.test/ (config, sheet, bad_raw/) copied into ``workdir``, without earlier outputs."""
+    """.test/ (config, sheet) copied into ``workdir`` with the corrupt RAW files written."""
     shutil.copytree(TEST_CONFIG, workdir, dirs_exist_ok=True,
                     ignore=shutil.ignore_patterns("results", "logs", ".snakemake", "report.html"))
+    write_bad_raw(workdir / "bad_raw")
 
 
 def run_workflow(workdir: Path, targets: tuple[str, ...] = (), dryrun: bool = False) -> bool:
