@@ -36,6 +36,8 @@ from seathru.sim.dive import DivePlan, DiveSpec, SimulatedView
 from seathru.sim.sensor import Pinhole, SensorConfig, jpeg_gain
 
 NAME_PREFIX = "dive_"
+# the layout table of this module's docstring, also written into every folder's README
+LAYOUT = __doc__.split("::\n\n", 1)[1].split("\n\n", 1)[0] + "\n"
 NEAR_FAR_MARGIN = 0.05  # cameras.json near/far = (1 -+ margin) * min/max finite range
 JPEG_QUALITY = 95
 TRUTH_KINDS = ("clean", "water", "depth")
@@ -147,16 +149,7 @@ Units: metres; world z up, seabed near z = 0. Images are named `{NAME_PREFIX}000
 
 ## Layout
 
-    raw/<name>.dng            camera raw: 16-bit RGGB mosaic, DNG 1.4 tags in the main IFD
-    jpeg/<name>.jpg           the same photo as an 8-bit sRGB JPEG (camera-like rendering)
-    truth/clean/<name>.tiff   clean linear radiance J, float32 (H, W, 3)
-    truth/water/<name>.tiff   linear water image I before the sensor, float32 (H, W, 3)
-    truth/depth/<name>.tiff   range z in metres, float32 (H, W); +inf where open water
-    truth/cameras.json        cameras (seathru-cameras/1); images point to truth/water/
-    truth/water.json          medium parameters of the image formation model
-    truth/sensor.json         sensor parameters and per-image exposure
-    truth/scene.json          scene geometry (seabed formula, objects, light, path)
-
+{LAYOUT}
 ## Ground truth
 
 - **Range** `z` is the Euclidean distance from the camera centre to the surface along
