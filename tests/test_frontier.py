@@ -22,9 +22,9 @@ from seathru.eval.report import DatasetRecord
 from seathru.eval.summary import EvaluationSummary, RenderSpeed, TrainingSummary
 from seathru.eval.truth import compare_water, view_truth_metrics
 from seathru.io.cameras import read_cameras
-from seathru.io.frontier import (frontier_table, read_frontier, read_snapshot_renders,
-                                 snapshot_path, write_frontier)
-from seathru.io.training import write_snapshots
+from seathru.radiometry.linearise import block_average
+from seathru.io.frontier import frontier_table, read_frontier, write_frontier
+from seathru.io.training import read_snapshot_renders, snapshot_path, write_snapshots
 from seathru.steps.render import render_dataset
 from tests.test_render_evaluate import (GAIN, METRES_PER_UNIT, RENDER_SETTINGS, WATER,
                                         make_fake_dataset)
@@ -37,7 +37,7 @@ from tests.test_render_evaluate import (GAIN, METRES_PER_UNIT, RENDER_SETTINGS, 
 def test_block_average_is_the_mean_of_each_block(height, width, factor, channels, seed):
     shape = (height, width) if channels is None else (height, width, channels)
     image = np.random.default_rng(seed).normal(size=shape)
-    result = frontier.block_average(image, factor)
+    result = block_average(image, factor)
     rows, cols = height // factor, width // factor
     assert result.shape == (rows, cols, *shape[2:])
     for r in range(rows):
@@ -50,7 +50,7 @@ def test_block_average_is_the_mean_of_each_block(height, width, factor, channels
 def test_block_average_keeps_open_water_undefined():
     depth = np.full((4, 4), 2.0)
     depth[0, 1] = np.inf
-    averaged = frontier.block_average(depth, 2)
+    averaged = block_average(depth, 2)
     assert np.isinf(averaged[0, 0]) and np.isfinite(averaged[1:, :]).all()
 
 
@@ -270,7 +270,7 @@ def _write_fake_snapshots(fake: dict, noises: list[float], times: list[float],
         arrays = {}
         for view in fake["test_views"]:
             for key, source in (("rgb", "full"), ("restored", "restored")):
-                image = frontier.block_average(fake["data"][view][source], DOWNSCALE)
+                image = block_average(fake["data"][view][source], DOWNSCALE)
                 arrays[f"{view}.{key}"] = (image + rng.normal(0, noise, image.shape)
                                            ).astype(np.float16)
         renders[step] = arrays
@@ -318,9 +318,9 @@ def test_restored_score_matches_a_direct_computation(evaluated):
     renders = read_snapshot_renders(evaluated["train"], 20)
     scores = []
     for view in sorted(renders):
-        clean = frontier.block_average(read_image(evaluated["truth"] / "clean" /
+        clean = block_average(read_image(evaluated["truth"] / "clean" /
                                                   f"{view}.tiff"), DOWNSCALE)
-        depth = frontier.block_average(read_image(evaluated["truth"] / "depth" /
+        depth = block_average(read_image(evaluated["truth"] / "depth" /
                                                   f"{view}.tiff"), DOWNSCALE)
         scores.append(view_truth_metrics(
             full=renders[view]["rgb"], restored=renders[view]["restored"], depth=depth,

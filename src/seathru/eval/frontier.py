@@ -24,6 +24,7 @@ import pandas as pd
 from seathru.eval import metrics
 from seathru.eval.report import DatasetRecord
 from seathru.eval.truth import WATER_KEYS, compare_water
+from seathru.radiometry.linearise import block_average
 
 CHANNELS = "rgb"
 WATER_ERROR_COLUMNS = tuple(f"{key}_rel_error_{c}" for key in WATER_KEYS for c in CHANNELS)
@@ -36,32 +37,6 @@ SUMMARY_COLUMNS = ("dataset", "variant", "run", "status", "psnr_linear", "train_
                    "snapshot_final_psnr", WITHIN_COLUMN, "within_share_of_training",
                    "restored_psnr_linear", "snapshot_final_restored_psnr",
                    "render_s_per_frame", "snapshots")
-
-
-def block_average(image: np.ndarray, factor: int) -> np.ndarray:
-    """Means of ``factor`` x ``factor`` pixel blocks (a partial last row or column dropped):
-    an image at the resolution the train step renders its snapshots at.
-
-    Args:
-        image: ``(H, W)`` or ``(H, W, C)``; a block holding a non-finite value (open water's
-            infinite range) averages to a non-finite value.
-        factor: the downscale, >= 1.
-
-    Returns:
-        ``(H // factor, W // factor[, C])`` float64.
-
-    Example::
-
-        block_average(np.arange(16.0).reshape(4, 4), 2)   # [[2.5, 4.5], [10.5, 12.5]]
-    """
-    image = np.asarray(image, dtype=np.float64)
-    if factor == 1:
-        return image
-    height, width = image.shape[0] // factor, image.shape[1] // factor
-    cropped = image[:height * factor, :width * factor]
-    blocks = cropped.reshape(height, factor, width, factor, *image.shape[2:])
-    with np.errstate(invalid="ignore"):
-        return blocks.mean(axis=(1, 3))
 
 
 def snapshot_restored_psnr(views: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]],

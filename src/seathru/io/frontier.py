@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import logging
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -36,43 +35,14 @@ from seathru.eval import frontier
 from seathru.eval.summary import TruthSummary
 from seathru.io.atomic import write_text
 from seathru.io.evaluation import read_truth_image
-from seathru.io.training import read_snapshots
+from seathru.io.training import read_snapshot_renders, read_snapshots, snapshot_path
 from seathru.io.water import read_truth_water
-from seathru.radiometry.linearise import resize_area
+from seathru.radiometry.linearise import block_average, resize_area
 
 log = logging.getLogger(__name__)
 
 FRONTIER_NAME = "frontier.csv"
 _HINT = "re-run the 'evaluate' step"
-
-
-def snapshot_path(train_dir: str | os.PathLike, step: int) -> Path:
-    """``train/snapshots/step_NNNNNNN.npz`` of a snapshot."""
-    return Path(train_dir) / "snapshots" / f"step_{int(step):07d}.npz"
-
-
-def read_snapshot_renders(train_dir: str | os.PathLike,
-                          step: int) -> dict[str, dict[str, np.ndarray]] | None:
-    """A snapshot's held-out renders: view -> {"rgb", "restored"} -> ``(h, w, 3)`` float32;
-    None when the file does not exist.
-
-    Raises:
-        PipelineError: naming the file when it is not a snapshot archive.
-    """
-    path = snapshot_path(train_dir, step)
-    if not path.is_file():
-        return None
-    views: dict[str, dict[str, np.ndarray]] = {}
-    try:
-        with np.load(path, allow_pickle=False) as archive:
-            for key in archive.files:
-                view, _, kind = key.rpartition(".")
-                if view and kind in ("rgb", "restored"):
-                    views.setdefault(view, {})[kind] = archive[key].astype(np.float32)
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise PipelineError(f"{path}: not a snapshot archive ({exc}); re-run the 'train' "
-                            "step") from None
-    return views
 
 
 def _truth_like(truth_dir: Path, kind: str, view: str, like: np.ndarray, downscale: int,
@@ -82,7 +52,7 @@ def _truth_like(truth_dir: Path, kind: str, view: str, like: np.ndarray, downsca
     key = (kind, view, like.shape[:2], downscale)
     if key not in cache:
         image = read_truth_image(truth_dir, kind, view)
-        averaged = frontier.block_average(image, downscale)
+        averaged = block_average(image, downscale)
         if averaged.shape[:2] != like.shape[:2]:
             averaged = resize_area(image, (like.shape[1], like.shape[0]))
         cache[key] = averaged

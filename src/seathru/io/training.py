@@ -12,6 +12,8 @@ import csv
 import io
 import json
 import math
+import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -138,10 +140,9 @@ def write_snapshots(out: Path, rows: list[dict], renders: dict[int, dict[str, np
                          else str(value))
         writer.writerow([*cells, downscale])
     write_text(Path(out) / "snapshots.csv", buffer.getvalue())
-    folder = Path(out) / "snapshots"
-    folder.mkdir(parents=True, exist_ok=True)
+    (Path(out) / "snapshots").mkdir(parents=True, exist_ok=True)
     for step, arrays in renders.items():
-        with atomic_path(folder / f"step_{step:07d}.npz") as tmp:
+        with atomic_path(snapshot_path(out, step)) as tmp:
             with open(tmp, "wb") as handle:
                 np.savez_compressed(handle, **arrays)
 
@@ -168,3 +169,32 @@ def read_snapshots(out: Path) -> list[dict]:
                                             "number; re-run the 'train' step") from None
             rows.append(row)
     return rows
+
+
+def snapshot_path(train_dir: str | os.PathLike, step: int) -> Path:
+    """``train/snapshots/step_NNNNNNN.npz`` of a snapshot."""
+    return Path(train_dir) / "snapshots" / f"step_{int(step):07d}.npz"
+
+
+def read_snapshot_renders(train_dir: str | os.PathLike,
+                          step: int) -> dict[str, dict[str, np.ndarray]] | None:
+    """A snapshot's held-out renders: view -> {"rgb", "restored"} -> ``(h, w, 3)`` float32;
+    None when the file does not exist.
+
+    Raises:
+        PipelineError: naming the file when it is not a snapshot archive.
+    """
+    path = snapshot_path(train_dir, step)
+    if not path.is_file():
+        return None
+    views: dict[str, dict[str, np.ndarray]] = {}
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            for key in archive.files:
+                view, _, kind = key.rpartition(".")
+                if view and kind in ("rgb", "restored"):
+                    views.setdefault(view, {})[kind] = archive[key].astype(np.float32)
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise PipelineError(f"{path}: not a snapshot archive ({exc}); re-run the 'train' "
+                            "step") from None
+    return views

@@ -8,12 +8,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from seathru.errors import PipelineError
 from seathru.nerf.config import TrainConfig, resolve_batch_rays
 from seathru.nerf.model import SeaThruModel, scene_from_frames
 from seathru.nerf.rays import RayBatch, RayDataset
+from seathru.radiometry.linearise import block_average
 
 log = logging.getLogger(__name__)
 
@@ -98,9 +98,7 @@ def veiling_light_estimate(images, masks=None, block: int = 4, share: float = 0.
     """
     colours, smoothness = [], []
     for index, image in enumerate(images):
-        small = F.avg_pool2d(torch.from_numpy(np.ascontiguousarray(image[..., :3],
-                                                                   dtype=np.float32))
-                             .permute(2, 0, 1)[None], block)[0].permute(1, 2, 0)
+        small = torch.from_numpy(block_average(image[..., :3], block))
         if small.shape[0] < 3 or small.shape[1] < 3:
             continue
         dx = (small[1:-1, 2:] - small[1:-1, :-2]).abs().sum(-1)
@@ -109,9 +107,8 @@ def veiling_light_estimate(images, masks=None, block: int = 4, share: float = 0.
         valid = torch.ones_like(level, dtype=torch.bool)
         mask = masks[index] if masks is not None and index < len(masks) else None
         if mask is not None:
-            pooled = F.avg_pool2d(torch.from_numpy(mask.astype(np.float32))[None, None],
-                                  block)[0, 0]
-            valid = pooled[1:-1, 1:-1] >= 1.0 - 1e-4
+            valid = torch.from_numpy(block_average(mask.astype(np.float64), block)
+                                     [1:-1, 1:-1] >= 1.0 - 1e-4)
         colours.append(small[1:-1, 1:-1][valid])
         smoothness.append(((dx + dy) / level)[valid])
     if not colours:

@@ -11,29 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
-import torch.nn.functional as F
-
 from seathru.nerf.inference import render_frame
 from seathru.nerf.losses import psnr_from_mse
-
-
-def block_mean(image: np.ndarray, factor: int) -> np.ndarray:
-    """Mean of ``factor`` x ``factor`` pixel blocks: what a render at that downscale sees.
-
-    Args:
-        image: (H, W, C) linear image.
-        factor: the downscale (1 = unchanged).
-
-    Returns:
-        (H // factor, W // factor, C) float32; a partial last row or column is dropped, as
-        ``nerf.rays.render_size`` does.
-    """
-    if factor == 1:
-        return np.asarray(image, dtype=np.float32)
-    tensor = torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).permute(2, 0, 1)
-    pooled = F.avg_pool2d(tensor[None], factor)[0]
-    return pooled.permute(1, 2, 0).numpy()
+from seathru.radiometry.linearise import block_average
 
 
 @dataclass
@@ -48,7 +28,8 @@ class QualitySnapshots:
 
     @classmethod
     def from_full_images(cls, frames, images, downscale: int) -> "QualitySnapshots":
-        return cls(list(frames), [block_mean(image, downscale) for image in images], downscale)
+        return cls(list(frames), [block_average(image, downscale).astype(np.float32)
+                                          for image in images], downscale)
 
     def measure(self, model, step: int, elapsed_s: float) -> dict:
         """Render every held-out view and record PSNR and the water at this point.

@@ -281,6 +281,32 @@ def resize_area(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
                       interpolation=cv2.INTER_AREA)
 
 
+def block_average(image: np.ndarray, factor: int) -> np.ndarray:
+    """Means of ``factor`` x ``factor`` pixel blocks (a partial last row or column dropped):
+    an image at the resolution the train step renders its snapshots at.
+
+    Args:
+        image: ``(H, W)`` or ``(H, W, C)``; a block holding a non-finite value (open water's
+            infinite range) averages to a non-finite value.
+        factor: the downscale, >= 1.
+
+    Returns:
+        ``(H // factor, W // factor[, C])`` float64.
+
+    Example::
+
+        block_average(np.arange(16.0).reshape(4, 4), 2)   # [[2.5, 4.5], [10.5, 12.5]]
+    """
+    image = np.asarray(image, dtype=np.float64)
+    if factor == 1:
+        return image
+    height, width = image.shape[0] // factor, image.shape[1] // factor
+    cropped = image[:height * factor, :width * factor]
+    blocks = cropped.reshape(height, factor, width, factor, *image.shape[2:])
+    with np.errstate(invalid="ignore"):
+        return blocks.mean(axis=(1, 3))
+
+
 def resize_mask(valid: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Resize a validity mask: an output pixel is valid only if every input pixel under it is."""
     if (valid.shape[1], valid.shape[0]) == tuple(size):
