@@ -39,12 +39,10 @@ import numpy as np
 
 from machine import cpu_name, load_average
 
-from seathru import settings
-from seathru.nerf.config import PAPER_OVERRIDES
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results" / "training.md"
-PAPER_FLAGS = settings.cli_flags(PAPER_OVERRIDES)
+PAPER_FLAGS = ["--preset", "paper", "--steps", "1000000"]  # nerf/config.py TRAIN_PRESETS
 PSNR_LEVELS = (20.0, 22.0, 24.0, 25.0, 26.0, 28.0, 30.0)
 NEAR_RANGE_M = 6.0
 
