@@ -205,4 +205,4 @@ def test_whole_pipeline_runs_as_slurm_jobs(slurm_cluster, tmp_path):
     assert (workdir / "results" / "report" / "summary.csv").is_file()
     _assert_ran_on_slurm(workdir, result, {
         "simulate": "cpu", "ingest": "cpu", "poses": "cpu", "train": "gpu", "render": "gpu",
-        "evaluate": "cpu"})
+        "evaluate": "cpu", "export": "cpu"})
