@@ -155,17 +155,22 @@ class TrainConfig:
     """Training of the SeaThru-NeRF model: object field, sampler, water, losses, optimiser and
     the run's budget. Stops at ``steps`` or after ``max_minutes``, whichever comes first."""
 
-    preset: Literal["fast", "balanced", "quality", "paper"] = setting(
-        "balanced", help="named settings beneath the explicit ones: fast (smaller grids, fewer "
-                         "samples), balanced (the defaults), quality (finer grids, more "
-                         "samples), paper (the paper-faithful configuration: PE MLP, "
-                         "hierarchical 128+32 samples, view-dependent water)")
+    preset: Literal["auto", "fast", "balanced", "quality", "paper"] = setting(
+        "auto", help="named settings beneath the explicit ones: auto (the capacity level "
+                     "the scene and the budget can use: fast, balanced or quality; "
+                     "seathru.nerf.capacity), fast (smaller grids, fewer samples), balanced "
+                     "(the defaults), quality (finer grids, more samples), paper (the "
+                     "paper-faithful configuration: PE MLP, hierarchical 128+32 samples, "
+                     "view-dependent water)")
     field: FieldConfig = section(FieldConfig)
     sampler: SamplerConfig = section(SamplerConfig)
     medium: MediumConfig = section(MediumConfig)
     loss: LossConfig = section(LossConfig)
     optim: OptimConfig = section(OptimConfig)
     steps: int = setting(6000, help="maximum optimisation steps")
+    passes: float = setting(0.0, help="training budget as passes over the training pixels: "
+                                      "sets steps to passes x pixels / batch_rays (0 = use "
+                                      "steps); max_minutes still applies")
     max_minutes: float = setting(3.0, help="wall-time budget in minutes; training stops "
                                            "gracefully and writes its outputs (0 = no limit)")
     batch_rays: int | None = setting(None, help="rays per step; automatic: 1024 on CPU, 4096 on "
@@ -210,6 +215,8 @@ class TrainConfig:
                 len(f.stage_starts) != len(f.density_res) - 1:
             raise ValueError("field.density_res and field.plane_res need one entry per stage and "
                              "field.stage_starts one per stage after the first")
+        if self.passes < 0:
+            raise ValueError(f"passes must be >= 0, got {self.passes}")
         for name, value in (("steps", self.steps), ("sampler.samples_per_ray", s.samples_per_ray),
                             ("batch_rays", self.batch_rays or 1)):
             if value < 1:
@@ -261,12 +268,13 @@ def resolve_batch_rays(config: TrainConfig, device_type: str) -> TrainConfig:
 
 
 # Named training settings (``train.preset``): the explicit settings of a dataset win over them.
-# fast/quality scale the grids and samples of the default (balanced) model (not yet measured
-# against each other: a sweep of the demo over them is the way, see config/README.md). paper
+# fast/balanced/quality are the capacity levels ``auto`` chooses among (seathru.nerf.capacity;
+# measured against each other on the demo and d3_reef: benchmarks/results/frontier.md). paper
 # is the paper-faithful configuration (Levy et al. 2023): PE MLP 8x256, hierarchical 128 + 32
 # samples, view-dependent water and colour, the paper's discretisation with no water beyond
 # the samples, Adam at 5e-4; the baseline of benchmarks/bench_training.py.
 TRAIN_PRESETS: dict[str, dict] = {
+    "auto": {},  # resolved per scene: seathru.nerf.capacity
     "fast": {"field": {"density_res": [64, 96, 128], "plane_res": [96, 192, 256],
                        "plane_channels": 6},
              "sampler": {"samples_per_ray": 12, "candidates_linear": 48}},

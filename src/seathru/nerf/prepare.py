@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from seathru.errors import PipelineError
+from seathru.nerf.capacity import choose_capacity, measure_scene, steps_for_passes
 from seathru.nerf.config import TrainConfig, resolve_batch_rays
 from seathru.nerf.model import SeaThruModel, scene_from_frames
 from seathru.nerf.rays import RayBatch, RayDataset
@@ -20,10 +21,11 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class PreparedRun:
-    config: TrainConfig         # with batch_rays and colour_max resolved
+    config: TrainConfig         # with batch_rays, steps (passes), capacity, colour_max resolved
     model: SeaThruModel
     data: RayDataset            # training rays
     test: RayBatch | None       # held-out pixels for the log's PSNR
+    capacity: dict = dataclasses.field(default_factory=dict)  # the auto choice and evidence
 
 
 def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_frames=(),
@@ -39,7 +41,9 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
         device: the torch device.
 
     Returns:
-        the resolved config, the model on ``device``, the training rays and held-out pixels.
+        the resolved config (``passes`` turned into ``steps``; ``preset=auto`` into a capacity
+        level, :func:`seathru.nerf.capacity.choose_capacity`), the model on ``device``, the
+        training rays, held-out pixels and the capacity record.
 
     Example::
 
@@ -69,8 +73,16 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
     scene = scene_from_frames(train_frames, cameras.near, cameras.far, cameras.centre,
                               cameras.scale, veiling if veiling is not None
                               else rgb.mean(0).tolist())
+    if config.passes > 0:
+        config = dataclasses.replace(config, steps=steps_for_passes(
+            config.passes, len(data), config.batch_rays))
+    config, capacity = choose_capacity(
+        config, measure_scene(train_frames, scene["box_min"], scene["box_max"], len(data)),
+        device.type)
+    if capacity.get("reason"):
+        log.info("capacity %s", capacity["reason"])
     model = SeaThruModel(config, scene).to(device)
-    return PreparedRun(config=config, model=model, data=data, test=test)
+    return PreparedRun(config=config, model=model, data=data, test=test, capacity=capacity)
 
 
 def veiling_light_estimate(images, masks=None, block: int = 4, share: float = 0.1,

@@ -149,7 +149,8 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     write_log_csv(out / "train_log.csv", result.log)
     write_snapshots(out, snapshots.rows, snapshots.renders, snapshots.downscale)
     write_json(out / "selection.json", {**result.selection, "final_mode": model.medium.mode,
-                                         "water_refits": trainer.water_refits})
+                                         "water_refits": trainer.water_refits,
+                                         "capacity": prepared.capacity})
     test_text = "n/a" if result.final_test_psnr is None else f"{result.final_test_psnr:.2f} dB"
     log.info("trained %d steps in %.0f s (stopped by %s; %.1f steps/s, %.0f rays/s); held-out "
              "PSNR %s; medium %s", result.steps, result.elapsed_s, result.stopped_by,

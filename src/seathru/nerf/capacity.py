@@ -1,0 +1,156 @@
+"""Model capacity that fits the scene and the budget (``train.preset=auto``).
+
+A voxel or tri-plane cell finer than the footprint of one pixel learns nothing the images hold,
+and a model the budget cannot show its data to at least about once converges to less than a
+smaller one would in the same time. ``auto`` therefore takes the largest of the capacity levels
+(the ``fast``, ``balanced`` and ``quality`` presets) that
+
+1. the scene can use: its finest tri-plane is not finer than the scene's footprint resolution
+   (cells along the scene box's longest axis for one cell per pixel at the median distance of
+   the cameras from the box centre), and
+2. the budget can train: the rays it will see (the time budget at the level's typical step
+   time on this kind of device, or the step limit, whichever is smaller) cover the training
+   pixels at least ``MIN_PASSES`` times.
+
+The smallest level is taken when no level meets both. Only settings still at their defaults
+are changed: an explicit ``field.plane_res`` or ``sampler.samples_per_ray`` is kept. The choice
+and its evidence go to ``selection.json`` (``capacity``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from seathru import settings
+from seathru.nerf.config import TRAIN_PRESETS, TrainConfig
+
+LEVELS = ("fast", "balanced", "quality")
+
+# Training step time (s) of each level at its final stage with 1024 rays, by device type:
+# benchmarks/results/profile.md (CPU, 2 threads: 35, 49, 90 ms on the demo). CUDA steps cost
+# about the same for every level at these sizes (benchmarks/results/training_h200*.md).
+STEP_SECONDS = {"cpu": {"fast": 0.035, "balanced": 0.049, "quality": 0.090},
+                "cuda": {"fast": 0.015, "balanced": 0.016, "quality": 0.019}}
+REFERENCE_BATCH = 1024
+MIN_PASSES = 1.0
+
+
+@dataclass
+class SceneMeasure:
+    """What the capacity choice reads of a scene."""
+
+    train_pixels: int          # valid training pixels
+    images: int
+    width: int                 # median image size
+    height: int
+    footprint_res: float       # cells along the box's longest axis for one cell per pixel
+
+
+def measure_scene(frames, box_min, box_max, train_pixels: int) -> SceneMeasure:
+    """The scene's size in pixels and data.
+
+    Args:
+        frames: the training frames (``c2w`` (4, 4), ``fx``, ``width``, ``height``).
+        box_min, box_max: the scene box (3,), in the cameras' units.
+        train_pixels: the number of valid training pixels.
+
+    Returns:
+        the measure; ``footprint_res`` is ``longest box side * focal / distance`` with the
+        median focal length (pixels) and median camera distance from the box centre.
+
+    Example::
+
+        measure = measure_scene(frames, scene["box_min"], scene["box_max"], len(data))
+    """
+    lo, hi = np.asarray(box_min, float), np.asarray(box_max, float)
+    centre = 0.5 * (lo + hi)
+    distance = float(np.median([np.linalg.norm(np.asarray(f.c2w_array)[:3, 3] - centre)
+                                for f in frames]))
+    focal = float(np.median([f.fx for f in frames]))
+    longest = float((hi - lo).max())
+    return SceneMeasure(train_pixels=int(train_pixels), images=len(frames),
+                        width=int(np.median([f.width for f in frames])),
+                        height=int(np.median([f.height for f in frames])),
+                        footprint_res=longest * focal / max(distance, 1e-9))
+
+
+def _level_settings(level: str) -> dict[str, Any]:
+    """The flattened settings of a capacity level (its preset over the defaults)."""
+    config = settings.from_mapping(TrainConfig, {"preset": level})
+    keys = settings.flatten(TRAIN_PRESETS["quality"]).keys() | \
+        settings.flatten(TRAIN_PRESETS["fast"]).keys()
+    flat = settings.flatten(config.to_dict())
+    return {k: flat[k] for k in keys}
+
+
+def expected_rays(config: TrainConfig, level: str, device_type: str) -> float:
+    """Rays the run will train on at ``level``: the step limit and the time budget's steps."""
+    batch = config.batch_rays or REFERENCE_BATCH
+    steps = float(config.steps)
+    if config.max_minutes and config.max_minutes > 0:
+        step_s = STEP_SECONDS.get(device_type, STEP_SECONDS["cpu"])[level]
+        step_s *= max(1.0, batch / REFERENCE_BATCH) if device_type == "cpu" else 1.0
+        steps = min(steps, config.max_minutes * 60.0 / step_s)
+    return steps * batch
+
+
+def choose_capacity(config: TrainConfig, measure: SceneMeasure, device_type: str
+                    ) -> tuple[TrainConfig, dict]:
+    """The config with the capacity ``auto`` chooses, and the choice with its evidence.
+
+    Args:
+        config: resolved training settings (``batch_rays`` set, ``steps`` final).
+        measure: :func:`measure_scene` of the training frames.
+        device_type: ``cpu`` or ``cuda``.
+
+    Returns:
+        the config (unchanged unless ``config.preset == "auto"``) and a record for
+        ``selection.json``: the level, the settings it changed, and per level the finest
+        plane, the expected passes and whether the scene and the budget allow it.
+    """
+    if config.preset != "auto":
+        return config, {"requested": config.preset, "chosen": config.preset}
+    defaults = settings.flatten(TrainConfig().to_dict())
+    current = settings.flatten(config.to_dict())
+    evidence = {}
+    chosen = LEVELS[0]
+    for level in LEVELS:
+        plane = max(_level_settings(level)["field.plane_res"])
+        passes = expected_rays(config, level, device_type) / max(1, measure.train_pixels)
+        fits_scene = plane <= measure.footprint_res or level == LEVELS[0]
+        fits_budget = passes >= MIN_PASSES
+        evidence[level] = {"finest_plane": plane, "expected_passes": round(passes, 2),
+                           "fits_scene": bool(fits_scene), "fits_budget": bool(fits_budget)}
+        if fits_scene and fits_budget:
+            chosen = level
+    changed = {k: v for k, v in _level_settings(chosen).items()
+               if current[k] == defaults[k] and v != current[k]}
+    kept = sorted(k for k, v in _level_settings(chosen).items()
+                  if current[k] != defaults[k] and v != current[k])
+    flat = {**current, **changed}
+    new = settings.from_mapping(TrainConfig, {**settings.nest(flat), "preset": "auto"})
+    record = {
+        "requested": "auto", "chosen": chosen, "changed": changed, "kept_explicit": kept,
+        "scene": dataclasses.asdict(measure), "device_type": device_type,
+        "min_passes": MIN_PASSES, "levels": evidence,
+        "reason": _reason(chosen, measure, evidence[chosen]),
+    }
+    return new, record
+
+
+def _reason(level: str, measure: SceneMeasure, evidence: dict) -> str:
+    return (f"{level}: finest tri-plane {evidence['finest_plane']} cells for a scene of "
+            f"{measure.footprint_res:.0f} pixel footprints across; about "
+            f"{evidence['expected_passes']:.1f} passes over the {measure.train_pixels:,} "
+            f"training pixels in the budget (a larger level needs >= {MIN_PASSES:g} pass "
+            "and a scene it can resolve)")
+
+
+def steps_for_passes(passes: float, train_pixels: int, batch_rays: int) -> int:
+    """Optimisation steps of ``passes`` passes over ``train_pixels`` at ``batch_rays`` a step."""
+    return max(1, math.ceil(passes * train_pixels / batch_rays))
