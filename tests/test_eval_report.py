@@ -205,3 +205,137 @@ def test_water_plot_draws_intervals_and_marks_undetermined_values():
         assert len([line for line in ax.lines if len(line.get_xdata()) == 2]) == 3  # intervals
     hatched = [p for p in bs.patches if isinstance(p, Rectangle) and p.get_hatch()]
     assert len(hatched) == 3 and not [p for p in attn.patches if p.get_hatch()]
+
+
+# -- community protocol and colour chart -------------------------------------------------------
+
+def _chart(measured: dict[str, np.ndarray | None], occluded=(5,), chart="macbeth-classic-24"):
+    """A colour-chart result as the evaluate step writes it (``seathru.io.chart``, JSON-safe):
+    per image label (stored / ingest / restored) its linear patch means, None: not measured."""
+    from seathru.eval import colour_chart as cc
+    from seathru.io.jsonfile import json_safe
+
+    spec = cc.CHARTS[chart]
+    use = np.ones(spec.patches, bool)
+    use[list(occluded)] = False
+    result = {"source": "colour_chart.json", "chart": chart, "reference": spec.source,
+              "image": "IMG_7", "occluded": list(occluded), "clipped": []}
+    for key, means in measured.items():
+        result[key] = ({"reason": "IMG_7 is a training view and no model to render it"}
+                       if means is None else
+                       {**cc.chart_errors(means, spec, use), "patch_means": means.tolist()})
+    return json_safe(result)
+
+
+def _reference_linear(chart="macbeth-classic-24") -> np.ndarray:
+    from seathru.eval import colour_chart as cc
+
+    return cc.lab_to_linear_srgb(cc.CHARTS[chart].reference_lab)
+
+
+CAST = np.array([0.45, 1.0, 1.3])   # an underwater cast: red lost, blue kept
+
+
+def _protocol(psnr: float, ssim: float, lpips: float | None = None) -> dict:
+    means = {"psnr": psnr, "ssim": ssim, "mae": 0.01, "mse": 0.001}
+    if lpips is not None:
+        means["lpips"] = lpips
+    return {"protocol": "nerfbaselines", "folder": "/r/d/evaluate/nerfbaselines", "views": 4,
+            "means": means, "ground_truth": "the stored 8-bit sRGB files as they are"}
+
+
+def test_protocol_and_chart_columns_only_where_measured_protocol_beside_ours():
+    reference = _reference_linear()
+    reef, lagoon = _summary("reef", 30.0), _summary("lagoon", 25.0)
+    reef.protocol = _protocol(27.5, 0.81, 0.2)
+    reef.colour_chart = _chart({"stored": 0.3 * reference * CAST, "ingest": 0.5 * reference,
+                                "restored": 0.4 * reference * np.sqrt(CAST)})
+    lagoon.colour_chart = _chart({"ingest": 0.5 * reference * CAST, "restored": None})
+    plain = _summary("plain", 28.0)
+    plain.colour_chart = {"source": "none", "reason": "no annotation; OpenCV mcc found none"}
+    records = [DatasetRecord("reef", summary=reef), DatasetRecord("lagoon", summary=lagoon),
+               DatasetRecord("plain", summary=plain),
+               DatasetRecord("broken", status="failed", failed_step="train", error="boom")]
+    table = summary_table(records)
+    columns = list(table.columns)
+    at = columns.index("lpips")
+    assert columns[at + 1:at + 4] == ["nerfbaselines_psnr", "nerfbaselines_ssim",
+                                      "nerfbaselines_lpips"]
+    rows = table.set_index("dataset")
+    assert rows.loc["reef", "nerfbaselines_psnr"] == 27.5
+    assert rows.loc["reef", "nerfbaselines_lpips"] == 0.2
+    assert rows[["nerfbaselines_psnr", "chart_de00_ingest"]].loc[["plain", "broken"]].isna().all(
+        axis=None)
+    # the photo, white-balanced ingest and the restored render in the order of their errors:
+    # exact colours (ingest) give 0, the full cast the most, half of it in between
+    assert rows.loc["reef", "chart_de00_ingest"] == pytest.approx(0.0, abs=1e-6)
+    assert rows.loc["reef", "chart_de00_photo"] > rows.loc["reef", "chart_de00_restored"] > 1.0
+    assert rows.loc["reef", "chart_grey_deg_photo"] > rows.loc["reef", "chart_grey_deg_restored"]
+    assert rows.loc["lagoon", "chart_de00_ingest"] == pytest.approx(
+        rows.loc["reef", "chart_de00_photo"])            # the same cast: the same error
+    assert np.isnan(rows.loc["lagoon", "chart_de00_photo"])   # a RAW source: no photo
+    assert np.isnan(rows.loc["lagoon", "chart_de00_restored"])
+    # none measured: no such columns at all
+    bare = summary_table([DatasetRecord("plain", summary=plain), records[-1]])
+    assert not [c for c in bare.columns if c.startswith(("nerfbaselines_", "chart_"))]
+
+
+def test_html_labels_the_protocol_and_shows_charts_in_their_own_table():
+    reference = _reference_linear()
+    reef = _summary("reef", 30.0)
+    reef.protocol = _protocol(27.5, 0.81)
+    reef.colour_chart = _chart({"stored": 0.3 * reference * CAST,
+                                "ingest": 0.5 * reference * np.sqrt(CAST), "restored": None})
+    records = [DatasetRecord("reef", summary=reef), DatasetRecord("plain",
+                                                                   summary=_summary("p", 20.0))]
+    table = summary_table(records)
+    page = render_html(table, records, {}, {}, "now", charts={"reef": PNG})
+    summary = page.split('<table class="summary">')[1].split("</table>")[0]
+    assert "<th>nerfbaselines_psnr</th><th>nerfbaselines_ssim</th>" in summary
+    assert "<td>27.5</td><td>0.81</td>" in summary and "chart_" not in summary
+    assert "nerfbaselines_lpips" not in page                 # no dataset has it
+    assert "NerfBaselines&#39; default protocol" in page and "reef: 4 views" in page
+    charts = page.split("<h2>Colour charts</h2>")[1].split("<h2>")[0]
+    row = charts.split("<td>reef</td>")[1].split("</tr>")[0]
+    cells = table.set_index("dataset").loc["reef"]
+    assert (f"<td>{cells['chart_de00_photo']:.4g}</td><td>{cells['chart_de00_ingest']:.4g}</td>"
+            in row) and cells["chart_de00_photo"] > cells["chart_de00_ingest"] > 1.0
+    assert 'title="IMG_7 is a training view and no model to render it">—</td>' in row
+    assert "<td>macbeth-classic-24</td><td>IMG_7</td><td>23</td><td>6</td>" in row
+    images = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', charts)
+    assert [base64.b64decode(data) for data in images] == [PNG]
+    plain = render_html(summary_table(records[1:]), records[1:], {}, {}, "now")
+    assert "Colour charts" not in plain and "nerfbaselines" not in plain
+
+
+def test_chart_swatches_show_the_measured_colours_at_the_errors_exposure():
+    from seathru.eval.report_plots import chart_swatches, plot_chart_swatches
+
+    reference = _reference_linear()
+    measured = 0.25 * reference * CAST
+    measured[3] = np.nan                                       # a patch outside the image
+    chart = _chart({"stored": measured, "ingest": 0.5 * reference, "restored": None},
+                   occluded=(5, 7))
+    rows = chart_swatches(chart)
+    assert list(rows) == ["reference", "photo", "ingest"]     # restored: not measured
+    ref = rows["reference"]["srgb"]
+    assert ref.shape == (24, 3)
+    assert np.all(ref[18] > 0.9) and np.all(ref[23] < 0.25)  # patch 19 white, 24 black
+    # exact colours at another exposure: the reference's swatches again
+    np.testing.assert_allclose(rows["ingest"]["srgb"], ref, atol=1e-6)
+    photo = rows["photo"]["srgb"]
+    assert np.isnan(photo[3]).all() and np.isnan(rows["photo"]["delta_e00"][[3, 5, 7]]).all()
+    grey = photo[18:24]                                        # the cast shows: blue over red
+    assert np.all(grey[:, 2] > grey[:, 0])
+    assert rows["photo"]["mean_delta_e00"] == chart["stored"]["mean_delta_e00"]
+    figure = plot_chart_swatches("reef", chart)
+    crosses = sorted((t.get_position()[1], t.get_position()[0])
+                     for t in figure.axes[0].texts if t.get_text() == "\u00d7")
+    assert crosses == [(1, 3), (1, 5), (1, 7), (2, 5), (2, 7)]   # (row, patch): 4 only on photo
+    numbers = [t for t in figure.axes[0].texts if t.get_text() != "\u00d7"]
+    assert len(numbers) == (24 - 3) + (24 - 2)                   # each scored patch's error
+    import matplotlib.pyplot as plt
+
+    plt.close(figure)
+    assert chart_swatches({**chart, "chart": "unknown-chart"}) is None
+    assert plot_chart_swatches("x", {**chart, "stored": None, "ingest": None}) is None

@@ -20,7 +20,8 @@ from skimage.transform import downscale_local_mean
 from seathru.radiometry import linearise
 from seathru.errors import PipelineError
 from seathru.io import raw as rawio
-from seathru.io.dataset_readers import frame_names, layout_images
+from seathru.io.dataset_readers import frame_names, layout_images, read_source_mask
+from seathru.io.images import read_mask
 from seathru.io.image_folder import resolve_input, select_files, select_paths
 from seathru.steps import ingest
 
@@ -607,6 +608,91 @@ def test_nerfstudio_layout_follows_file_paths_and_lists_missing_frames(tmp_path)
     (root / "transforms.json").write_text(json.dumps({"frames": [{"transform_matrix": []}]}))
     with pytest.raises(PipelineError, match="frame 0: field 'file_path' missing"):
         layout_images("nerfstudio", root)
+
+
+def _ns_mask(path: Path, size=(12, 8), ignore=(slice(0, 0), slice(0, 0)), value=255) -> None:
+    """A nerfstudio mask: ``value`` (kept) everywhere but 0 (ignored) in the ``ignore`` block."""
+    mask = np.full((size[1], size[0]), value, np.uint8)
+    mask[ignore] = 0
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), mask)
+
+
+def test_nerfstudio_layout_keeps_each_frames_mask_path(tmp_path):
+    root = tmp_path / "ns"
+    _pngs(root / "images", ["f1.png", "f2.png", "f3.png"])
+    _pngs(root / "images_2", ["f1.png", "f2.png", "f3.png"], size=(6, 4))
+    _ns_mask(root / "masks" / "f1.png")
+    _ns_mask(root / "masks_2" / "f1.png", size=(6, 4))
+    frames = [{"file_path": "images/f1.png", "mask_path": "masks/f1.png"},
+              {"file_path": "images/f2.png", "mask_path": "masks/f2.png"},   # mask not there
+              {"file_path": "images/f3.png"},
+              {"file_path": "images/f4.png", "mask_path": "masks/f4.png"}]   # frame not there
+    (root / "transforms.json").write_text(json.dumps({"frames": frames}))
+    found = layout_images("nerfstudio", root)
+    assert {n: p.relative_to(root).as_posix() for n, p in found.masks.items()} == {
+        "f1": "masks/f1.png", "f2": "masks/f2.png"}
+    assert [m["name"] for m in found.missing] == ["f4"] and found.record()["masks"] == 2
+    half = layout_images("nerfstudio", root, "images_2")   # nerfstudio's masks_<N>, else full
+    assert {n: p.relative_to(root).as_posix() for n, p in half.masks.items()} == {
+        "f1": "masks_2/f1.png", "f2": "masks/f2.png"}
+
+
+def test_source_masks_keep_nonzero_pixels_and_follow_the_image_size(tmp_path):
+    _ns_mask(tmp_path / "m.png", size=(12, 8), ignore=(slice(0, 4), slice(0, 6)), value=1)
+    mask = read_source_mask(tmp_path / "m.png", 12, 8)
+    assert mask.dtype == bool and mask.sum() == 96 - 24 and not mask[:4, :6].any()
+    doubled = read_source_mask(tmp_path / "m.png", 24, 16)   # nearest, like nerfstudio
+    assert doubled.shape == (16, 24) and not doubled[:8, :12].any() and doubled[8:, :].all()
+    rgb = np.zeros((8, 12, 3), np.uint8)
+    rgb[2, 3, 2] = 9                                          # one channel is enough
+    cv2.imwrite(str(tmp_path / "rgb.png"), rgb)
+    assert np.argwhere(read_source_mask(tmp_path / "rgb.png", 12, 8)).tolist() == [[2, 3]]
+    with pytest.raises(PipelineError, match=r"m.png: mask of 12x8 pixels does not fit its "
+                                            r"image of 8x12"):
+        read_source_mask(tmp_path / "m.png", 8, 12)
+    with pytest.raises(PipelineError, match="gone.png: the frame's mask_path file is not there"):
+        read_source_mask(tmp_path / "gone.png", 12, 8)
+
+
+def test_ingest_ands_nerfstudio_masks_into_the_clipping_masks(tmp_path):
+    root = tmp_path / "ns"
+    _pngs(root / "images", ["f1.png", "f2.png", "f3.png", "f4.png"])
+    clipped = _ramp()
+    clipped[6:, 9:] = 255                     # clipped in every channel, bottom right
+    cv2.imwrite(str(root / "images" / "f1.png"), clipped)
+    _ns_mask(root / "masks" / "f1.png", ignore=(slice(0, 3), slice(0, 4)))
+    _ns_mask(root / "masks" / "f2.png", size=(6, 4), ignore=(slice(0, 2), slice(4, 6)))
+    _ns_mask(root / "masks" / "f3.png", size=(8, 12))          # transposed: does not fit
+    frames = [{"file_path": "images/f1.png", "mask_path": "masks/f1.png"},
+              {"file_path": "images/f2.png", "mask_path": "masks/f2.png"},
+              {"file_path": "images/f3.png", "mask_path": "masks/f3.png"},
+              {"file_path": "images/f4.png"},
+              {"file_path": "images/f5.png", "mask_path": "masks/f5.png"}]
+    (root / "transforms.json").write_text(json.dumps({"frames": frames}))
+    out = tmp_path / "out"
+    manifest = run_ingest("--input", root, "--layout", "nerfstudio", "--out", out,
+                          "--workers", 1, "--wb", "none", "--mask-dilation", 0,
+                          "--min-images", 2, "--downscale", 2)
+    assert [image["name"] for image in manifest["images"]] == ["f1", "f2", "f4"]
+    assert [r["file"] for r in manifest["rejected"]] == ["f3.png"]
+    assert "does not fit its image of 12x8" in manifest["rejected"][0]["reason"]
+    assert [m["name"] for m in manifest["input"]["layout"]["missing"]] == ["f5"]
+    assert manifest["input"]["layout"]["masks"] == 3
+    expected = np.ones((8, 12), bool)
+    expected[6:, 9:] = False                  # clipped
+    expected[:3, :4] = False                  # the dataset's mask
+    assert np.array_equal(read_mask(out / "masks" / "f1.png"), expected)
+    half = np.ones((8, 12), bool)
+    half[:4, 8:] = False                      # the half-size mask, scaled up
+    assert np.array_equal(read_mask(out / "masks" / "f2.png"), half)
+    assert read_mask(out / "masks" / "f4.png").all()
+    assert np.array_equal(read_mask(out / "masks_2" / "f1.png"),
+                          linearise.resize_mask(expected, (6, 4)))
+    clipped_share = {image["name"]: image["clipped_fraction"] for image in manifest["images"]}
+    assert clipped_share == {"f1": pytest.approx(6 / 96), "f2": 0.0, "f4": 0.0}  # clipping only
+    warnings = json.loads((out / "warnings.json").read_text())["warnings"]
+    assert {w["code"] for w in warnings} >= {"rejected_images", "missing_frames"}
 
 
 def test_frame_names_stay_unique_across_subfolders():

@@ -4,6 +4,7 @@ datasets (a stand-in renderer, see tests/test_render_evaluate.py), plus failed d
 from __future__ import annotations
 
 import base64
+import json
 import os
 import re
 import time
@@ -131,6 +132,59 @@ def test_html_is_self_contained_with_table_plots_and_errors(report):
     assert len(images) == 7   # three plots, two frontier figures (final points), two strips
     assert all(base64.b64decode(data)[:8] == b"\x89PNG\r\n\x1a\n" for data in images)
     assert 'src="http' not in page
+
+
+def test_datasets_without_protocol_or_chart_add_nothing(report):
+    table = pd.read_csv(report["out"] / "summary.csv")
+    assert not [c for c in table.columns if c.startswith(("nerfbaselines_", "chart_"))]
+    assert list((report["out"] / "charts").iterdir()) == []
+    page = (report["out"] / "summary.html").read_text()
+    assert "Colour charts" not in page and "nerfbaselines" not in page
+
+
+@pytest.fixture(scope="module")
+def chart_report(tmp_path_factory):
+    """A dataset of stored 8-bit photos with an annotated chart (tests/test_colour_chart.py),
+    evaluated with the NerfBaselines protocol, beside one that has not run."""
+    from tests.test_colour_chart import _dataset
+
+    base = tmp_path_factory.mktemp("chart_report")
+    data = _dataset(base / "results" / "reef", chart_view=0)
+    annotation = {"format": "seathru-colour-chart/1", "chart": "macbeth-classic-24",
+                  "image": "view_00.png", "corners": data["corners"].tolist(), "occluded": [5]}
+    (data["source"] / "colour_chart.json").write_text(json.dumps(annotation))
+    root = data["root"]
+    assert main(["evaluate", "--renders", str(root / "render"), "--cameras",
+                 str(root / "poses" / "cameras.json"), "--train-dir", str(root / "train"),
+                 "--out", str(root / "evaluate"), "--no-chart-detect",
+                 "--protocol", "nerfbaselines"]) == 0
+    sheet = base / "datasets.tsv"
+    sheet.write_text("dataset\tsource\nreef\tllff\npending\tllff\n")
+    out = base / "report"
+    assert main(["report", "--results", str(base / "results"), "--datasets", str(sheet),
+                 "--out", str(out)]) == 0
+    return {"out": out, "summary": json.loads((root / "evaluate" / "summary.json").read_text())}
+
+
+def test_report_shows_the_evaluations_protocol_and_chart(chart_report):
+    out, summary = chart_report["out"], chart_report["summary"]
+    table = pd.read_csv(out / "summary.csv").set_index("dataset")
+    columns = list(table.columns)
+    assert columns.index("nerfbaselines_psnr") == columns.index("lpips") + 1
+    protocol, chart = summary["protocol"]["means"], summary["colour_chart"]
+    assert table.loc["reef", "nerfbaselines_psnr"] == pytest.approx(protocol["psnr"], rel=1e-5)
+    assert table.loc["reef", "nerfbaselines_ssim"] == pytest.approx(protocol["ssim"], rel=1e-5)
+    for label, key in (("photo", "stored"), ("ingest", "ingest"), ("restored", "restored")):
+        assert table.loc["reef", f"chart_de00_{label}"] == pytest.approx(
+            chart[key]["mean_delta_e00"], rel=1e-5)
+        assert table.loc["reef", f"chart_grey_deg_{label}"] == pytest.approx(
+            chart[key]["mean_grey_angular_error_deg"], rel=1e-5)
+    assert table.loc[["pending"], ["nerfbaselines_psnr", "chart_de00_photo"]].isna().all(axis=None)
+    swatches = read_image(out / "charts" / "reef.png")
+    assert swatches.shape[1] > 3 * swatches.shape[0] and swatches.std() > 0.05
+    page = (out / "summary.html").read_text()
+    assert "<h2>Colour charts</h2>" in page and "charts/reef.png" in page
+    assert "reef: 2 views, ground truth the stored 8-bit sRGB files as they are" in page
 
 
 def test_report_runtime_is_small(report):

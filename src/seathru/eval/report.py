@@ -7,6 +7,12 @@ Pure, no file I/O: the report step reads the files into :class:`DatasetRecord` a
 two the report derives from the train step's outputs (:func:`training_warnings`): the water
 model turned off by ``medium.mode=auto``, and training that ended with its held-out PSNR still
 rising fast (far from convergence).
+
+Where the evaluate step ran a community protocol (``evaluate.protocol=nerfbaselines``), its
+means sit beside ours as ``<protocol>_psnr`` / ``_ssim`` / ``_lpips`` (:func:`protocol_cells`);
+where it measured a colour chart, the mean CIEDE2000 and grey angular error of the photo, the
+ingest image and the restored render are the ``chart_*`` columns (:func:`chart_cells`) and the
+page's "Colour charts" section (:func:`chart_rows`). Datasets without them add nothing.
 """
 
 from __future__ import annotations
@@ -27,14 +33,25 @@ from seathru.eval.truth import WATER_KEYS
 ERROR_LINE = re.compile(r"seathru (?P<step>[\w-]+): error: (?P<message>.*)")
 STOPPED_BY_LINE = re.compile(r"\(stopped by (?P<cause>\w+)[;)]")
 NOT_RUN = "no results and no logs (not run yet?)"
+#: The colour chart's images (keys of the evaluate step's ``colour_chart``) and their labels.
+CHART_IMAGES = (("stored", "photo"), ("ingest", "ingest"), ("restored", "restored"))
+CHART_COLUMNS = (*(f"chart_de00_{label}" for _, label in CHART_IMAGES),
+                 *(f"chart_grey_deg_{label}" for _, label in CHART_IMAGES))
 TABLE_COLUMNS = (
     "dataset", "source", "options", "status", "warnings", "needs_a_look", "failed_step",
     "error", "views",
     "psnr_linear", "ssim_linear", "psnr_srgb", "ssim_srgb", "lpips",
     "restored_psnr_linear", "restored_ssim_linear", "full_vs_clean_psnr_linear",
-    "depth_median_abs_rel", "depth_corr", "train_time_s", "train_steps", "render_fps",
-    "render_resolution", "medium")
+    "depth_median_abs_rel", "depth_corr", *CHART_COLUMNS, "train_time_s", "train_steps",
+    "render_fps", "render_resolution", "medium")
 ALWAYS_SHOWN = ("dataset", "status", "warnings", "needs_a_look", "error", "failed_step")
+#: A protocol's means shown, in this order, as ``<protocol>_<metric>`` after ``lpips``.
+PROTOCOL_METRICS = ("psnr", "ssim", "lpips", "lpips_vgg")
+PROTOCOL_NOTES = {
+    "nerfbaselines": "NerfBaselines' default protocol (evaluate.protocol=nerfbaselines): the "
+                     "render taken back to the stored images' encoding and geometry, 8-bit, "
+                     "against the stored images as they are on disk; comparable with published "
+                     "NerfBaselines results, not with psnr_linear"}
 
 
 @dataclass
@@ -190,9 +207,60 @@ def needs_a_look(warnings: Sequence[dict]) -> str | None:
     return "; ".join(f"{w['step']}: {w['code']}" for w in warnings) or None
 
 
+def protocol_cells(summary: EvaluationSummary | None) -> dict[str, float | None]:
+    """``<protocol>_<metric>`` -> the protocol's mean over its views, for the metrics of
+    :data:`PROTOCOL_METRICS` it has; {} without a protocol evaluation.
+
+    Example::
+
+        protocol_cells(summary)   # {"nerfbaselines_psnr": 27.1, "nerfbaselines_ssim": 0.83}
+    """
+    protocol = summary.protocol if summary is not None else None
+    means = protocol.get("means") if isinstance(protocol, dict) else None
+    if not isinstance(means, dict):
+        return {}
+    name = str(protocol.get("protocol") or "protocol")
+    return {f"{name}_{metric}": means[metric] for metric in PROTOCOL_METRICS if metric in means}
+
+
+def measured_chart(summary: EvaluationSummary | None) -> dict | None:
+    """The evaluate step's colour-chart result when a chart was measured (on at least one
+    image), else None (no chart found, an older summary)."""
+    chart = summary.colour_chart if summary is not None else None
+    if not isinstance(chart, dict) or chart.get("source") in (None, "none"):
+        return None
+    if not any(isinstance(chart.get(key), dict) and "mean_delta_e00" in chart[key]
+               for key, _ in CHART_IMAGES):
+        return None
+    return chart
+
+
+def chart_cells(summary: EvaluationSummary | None) -> dict[str, float | None]:
+    """The ``chart_*`` columns (:data:`CHART_COLUMNS`): mean CIEDE2000 and grey angular error
+    (degrees) of the chart on the photo, the ingest image and the restored render; None where
+    that image was not measured; {} without a measured chart."""
+    chart = measured_chart(summary)
+    if chart is None:
+        return {}
+    cells = {}
+    for key, label in CHART_IMAGES:
+        part = chart.get(key) if isinstance(chart.get(key), dict) else {}
+        cells[f"chart_de00_{label}"] = part.get("mean_delta_e00")
+        cells[f"chart_grey_deg_{label}"] = part.get("mean_grey_angular_error_deg")
+    return cells
+
+
+def _ordered_columns(columns: Sequence[str]) -> list[str]:
+    """:data:`TABLE_COLUMNS` order, each protocol's columns right after ``lpips``."""
+    protocol = [c for c in columns if c not in TABLE_COLUMNS]
+    at = TABLE_COLUMNS.index("lpips") + 1
+    return [c for c in (*TABLE_COLUMNS[:at], *protocol, *TABLE_COLUMNS[at:]) if c in columns]
+
+
 def summary_table(records: Sequence[DatasetRecord]) -> pd.DataFrame:
-    """One row per dataset: status, failure, metric means, training and render figures. Columns
-    of :data:`TABLE_COLUMNS` that no dataset has are left out."""
+    """One row per dataset: status, failure, metric means, protocol means, colour chart,
+    training and render figures. Columns of :data:`TABLE_COLUMNS` (and protocol columns) that no
+    dataset has are left out."""
     rows = []
     for record in records:
         row = {"dataset": record.dataset, "source": record.source, "options": record.options,
@@ -203,6 +271,8 @@ def summary_table(records: Sequence[DatasetRecord]) -> pd.DataFrame:
         row["views"] = summary.views if summary else None
         means = summary.means if summary else {}
         row.update({key: means[key] for key in TABLE_COLUMNS if key in means})
+        row.update(protocol_cells(summary))
+        row.update(chart_cells(summary))
         training = summary.training if summary else None
         row["train_time_s"] = training.time_s if training else None
         row["train_steps"] = training.steps if training else None
@@ -218,9 +288,35 @@ def summary_table(records: Sequence[DatasetRecord]) -> pd.DataFrame:
         row["medium"] = medium_name(summary.medium_selection if summary else None)
         rows.append(row)
     table = pd.DataFrame(rows)
-    columns = [c for c in TABLE_COLUMNS if c in table.columns and
-               (c in ALWAYS_SHOWN or table[c].notna().any())]
+    columns = [c for c in _ordered_columns(list(table.columns))
+               if c in ALWAYS_SHOWN or table[c].notna().any()]
     return table[columns]
+
+
+def chart_rows(records: Sequence[DatasetRecord]) -> list[dict]:
+    """One row per dataset with a measured colour chart (the page's "Colour charts" table):
+    ``dataset``, ``chart``, ``view``, ``excluded`` (occluded and clipped patches, 1-based),
+    ``patches_used`` and per image of :data:`CHART_IMAGES` (by label) ``de00`` /
+    ``grey_deg`` (means) or ``reason`` it was not measured."""
+    rows = []
+    for record in records:
+        chart = measured_chart(record.summary)
+        if chart is None:
+            continue
+        images, used = {}, None
+        for key, label in CHART_IMAGES:
+            part = chart.get(key) if isinstance(chart.get(key), dict) else {}
+            absent = "a RAW source: no photo" if key == "stored" else "not measured"
+            images[label] = {"de00": part.get("mean_delta_e00"),
+                             "grey_deg": part.get("mean_grey_angular_error_deg"),
+                             "reason": part.get("reason") if part else absent}
+            used = part.get("patches_used", used)
+        excluded = sorted({int(i) + 1 for i in (*chart.get("occluded", []),
+                                                *chart.get("clipped", []))})
+        rows.append({"dataset": record.dataset, "chart": chart.get("chart"),
+                     "view": chart.get("image"), "excluded": excluded,
+                     "patches_used": used, "images": images})
+    return rows
 
 
 def water_intervals(record: DatasetRecord) -> tuple[dict | None, dict | None]:
@@ -274,21 +370,42 @@ def _template():
     return environment.get_template("report.html.j2")
 
 
+def protocol_notes(records: Sequence[DatasetRecord]) -> list[dict]:
+    """What each protocol shown in the table is (``name``, ``note``) and, per dataset, its
+    ``views`` and ``ground_truth`` (``datasets``); [] when no dataset ran one."""
+    notes: dict[str, dict] = {}
+    for record in records:
+        protocol = record.summary.protocol if record.summary is not None else None
+        if not protocol_cells(record.summary):
+            continue
+        name = str(protocol.get("protocol") or "protocol")
+        entry = notes.setdefault(name, {"name": name, "datasets": [], "note": PROTOCOL_NOTES.get(
+            name, f"the {name} protocol")})
+        entry["datasets"].append({"dataset": record.dataset, "views": protocol.get("views"),
+                                  "ground_truth": protocol.get("ground_truth")})
+    return list(notes.values())
+
+
 def render_html(table: pd.DataFrame, records: Sequence[DatasetRecord],
                 plots: Mapping[str, bytes], strips: Mapping[str, bytes], generated: str,
                 frontier: pd.DataFrame | None = None,
-                fronts: Mapping[str, bytes] | None = None) -> str:
+                fronts: Mapping[str, bytes] | None = None,
+                charts: Mapping[str, bytes] | None = None) -> str:
     """The self-contained report page: the summary table, failures, water against the truth,
-    quality against time, and the plots and image strips (PNG bytes) inlined.
+    colour charts, quality against time, and the plots and image strips (PNG bytes) inlined.
 
     Args:
-        table: from :func:`summary_table`.
+        table: from :func:`summary_table`; its ``chart_*`` columns are shown in the "Colour
+            charts" section (:func:`chart_rows`) instead of the summary.
         plots: file name -> PNG; strips: dataset -> PNG.
         generated: the time stamp shown on the page.
         frontier: one row per run (``seathru.eval.frontier.frontier_summary``); fronts:
             dataset -> PNG of its frontier figure.
+        charts: dataset -> PNG of its chart swatches
+            (``seathru.eval.report_plots.plot_chart_swatches``).
     """
     by_name = {record.dataset: record for record in records}
+    table = table[[c for c in table.columns if c not in CHART_COLUMNS]]
     rows = []
     for _, row in table.iterrows():
         record = by_name.get(row["dataset"])
@@ -315,4 +432,5 @@ def render_html(table: pd.DataFrame, records: Sequence[DatasetRecord],
         frontier_rows=[] if frontier is None else [
             [None if not isinstance(v, str) and pd.isna(v) else v for v in row]
             for row in frontier.itertuples(index=False)],
-        fronts=fronts or {})
+        fronts=fronts or {}, protocols=protocol_notes(records), chart_rows=chart_rows(records),
+        chart_labels=[label for _, label in CHART_IMAGES], charts=charts or {})

@@ -8,7 +8,9 @@ one to PNG bytes and closes it). No file I/O.
   (and restored-vs-clean) of every snapshot against training time, and the final PSNR against
   render time per frame, each with its Pareto front;
 - :func:`plot_strip`: ground truth | full render | restored | depth | backscatter for a few
-  held-out views of one dataset.
+  held-out views of one dataset;
+- :func:`plot_chart_swatches`: a measured colour chart's patches, reference against the photo,
+  the ingest image and the restored render (:func:`chart_swatches`).
 
 Call ``matplotlib.use("Agg")`` first on machines without a display.
 """
@@ -21,9 +23,11 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from seathru.eval.colour_chart import CHARTS, lab_to_linear_srgb
 from seathru.eval.frontier import final_point, pareto_front, snapshot_curve
-from seathru.eval.report import DatasetRecord, water_intervals, water_values
+from seathru.eval.report import CHART_IMAGES, DatasetRecord, water_intervals, water_values
 from seathru.eval.truth import WATER_KEYS
+from seathru.radiometry.colour import linear_to_srgb
 
 STRIP_COLUMNS = (("gt", "ground truth"), ("full", "full render"), ("restored", "restored"),
                  ("depth", "depth"), ("backscatter", "backscatter"))
@@ -297,4 +301,80 @@ def plot_strip(record: DatasetRecord,
                 ax.set_ylabel(label, fontsize=8)
     figure.suptitle(f"{record.dataset}: held-out views", fontsize=10)
     figure.subplots_adjust(wspace=0.02, hspace=0.05)
+    return figure
+
+
+def _floats(values) -> np.ndarray:
+    """A JSON list (of lists) of numbers with nulls as a float array, nulls as NaN."""
+    array = np.asarray(values, dtype=object)
+    return np.array([np.nan if v is None else v for v in array.ravel()],
+                    dtype=np.float64).reshape(array.shape)
+
+
+def chart_swatches(chart: Mapping) -> dict[str, dict] | None:
+    """The colours to draw of a measured chart (the evaluate step's ``colour_chart``), by row:
+    ``reference`` and, for each image of ``CHART_IMAGES`` measured, its label.
+
+    Returns:
+        label -> ``{"srgb": (patches, 3) display colours in [0, 1] (NaN: not measured),
+        "delta_e00": (patches,) (NaN: not scored), "mean_delta_e00"}``; measured patches at the
+        exposure scale the error uses (one scalar: a colour cast stays visible). None for a
+        chart type this version does not know or without a measured image.
+
+    Example::
+
+        rows = chart_swatches(summary.colour_chart)   # {"reference": ..., "photo": ...}
+    """
+    spec = CHARTS.get(chart.get("chart")) if isinstance(chart, Mapping) else None
+    if spec is None:
+        return None
+    reference = lab_to_linear_srgb(spec.reference_lab)
+    rows = {"reference": {"srgb": linear_to_srgb(np.clip(reference, 0.0, 1.0)),
+                          "delta_e00": np.full(spec.patches, np.nan), "mean_delta_e00": None}}
+    for key, label in CHART_IMAGES:
+        part = chart.get(key)
+        if not isinstance(part, Mapping) or part.get("patch_means") is None:
+            continue
+        means = _floats(part["patch_means"])
+        scale = part.get("exposure_scale")
+        if means.shape != (spec.patches, 3) or scale is None or not np.isfinite(scale):
+            continue
+        delta = _floats(part.get("delta_e00") or [None] * spec.patches)
+        rows[label] = {"srgb": linear_to_srgb(np.clip(scale * means, 0.0, 1.0)),
+                       "delta_e00": delta, "mean_delta_e00": part.get("mean_delta_e00")}
+    return rows if len(rows) > 1 else None
+
+
+def plot_chart_swatches(dataset: str, chart: Mapping):
+    """One row of swatches per image (:func:`chart_swatches`), patches left to right in the
+    chart's order; excluded patches crossed, each measured patch labelled with its CIEDE2000.
+    None when there is nothing to draw."""
+    import matplotlib.pyplot as plt
+
+    rows = chart_swatches(chart)
+    if rows is None:
+        return None
+    labels = list(rows)
+    colours = np.stack([rows[label]["srgb"] for label in labels])
+    patches = colours.shape[1]
+    excluded = {int(i) for i in (*chart.get("occluded", []), *chart.get("clipped", []))}
+    figure, axes = plt.subplots(figsize=(max(4.0, 0.42 * patches + 1.6), 0.5 * len(labels) + 0.9))
+    axes.imshow(np.where(np.isfinite(colours), colours, 1.0), aspect="equal",
+                interpolation="nearest")
+    for r, label in enumerate(labels):
+        for c in range(patches):
+            if r and (c in excluded or not np.isfinite(colours[r, c]).all()):
+                axes.text(c, r, "\u00d7", ha="center", va="center", fontsize=12, color="0.3")
+            elif np.isfinite(delta := rows[label]["delta_e00"][c]):
+                light = float(colours[r, c] @ [0.2126, 0.7152, 0.0722]) > 0.55
+                axes.text(c, r, f"{delta:.0f}", ha="center", va="center", fontsize=6,
+                          color="black" if light else "white")
+    axes.set_yticks(range(len(labels)))
+    axes.set_yticklabels([label if rows[label]["mean_delta_e00"] is None else
+                          f"{label}  \u0394E00 {rows[label]['mean_delta_e00']:.1f}"
+                          for label in labels], fontsize=8)
+    axes.set_xticks(range(patches))
+    axes.set_xticklabels([str(c + 1) for c in range(patches)], fontsize=6)
+    axes.tick_params(length=0)
+    axes.set_title(f"{dataset}: {chart.get('chart')} in {chart.get('image')}", fontsize=9)
     return figure

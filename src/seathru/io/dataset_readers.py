@@ -19,7 +19,10 @@ the views (:func:`frame_names`):
   differs (IMG_1.JPG in the model, IMG_1.png on disk).
 - ``nerfstudio``: the file each frame's ``file_path`` points to (relative to transforms.json,
   subfolders included; with ``images=images_<N>`` the leading ``images/`` becomes images_<N>,
-  nerfstudio's downscale convention). Frames whose file is missing are skipped and listed.
+  nerfstudio's downscale convention). Frames whose file is missing are skipped and listed. A
+  frame's ``mask_path`` (nerfstudio's convention: one image, 0 = ignore the pixel; with
+  ``images=images_<N>``, ``masks_<N>/<file>`` where that exists) is kept in
+  :attr:`LayoutImages.masks`; ingest ands it into the clipping mask (:func:`read_source_mask`).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pycolmap
 
@@ -38,7 +42,7 @@ from seathru.geometry.poses import (FAR_MARGIN, NEAR_MARGIN, depth_bounds, llff_
                                    opengl_to_opencv, point_depths)
 from seathru.errors import PipelineError
 from seathru.io.colmap import make_camera, model_images, read_model
-from seathru.io.images import IMAGE_EXTENSIONS
+from seathru.io.images import IMAGE_EXTENSIONS, read_image
 from seathru.io.raw import RAW_EXTENSIONS
 
 log = logging.getLogger(__name__)
@@ -389,7 +393,9 @@ class LayoutImages:
     ``files``: ``(file, view name)``; ``folder``: the image folder relative to ``root`` (for
     nerfstudio the folders the frames point into); ``reason``: why these; ``kind``: ``linear``
     where the layout says the files are linear whatever their bit depth (images_wb), else None;
-    ``missing``: files the dataset lists that are not there, ``{"name", "file"}``.
+    ``missing``: files the dataset lists that are not there, ``{"name", "file"}``; ``masks``:
+    view name -> the mask file its frame names (nerfstudio ``mask_path``; the file may be
+    missing: ingest rejects such a view with the reason).
     """
 
     layout: str
@@ -399,12 +405,14 @@ class LayoutImages:
     reason: str
     kind: str | None = None
     missing: list[dict] = field(default_factory=list)
+    masks: dict[str, Path] = field(default_factory=dict)
 
     def record(self) -> dict:
-        """The manifest's ``input.layout`` (``seathru.io.manifest.LayoutRecord``)."""
+        """The manifest's ``input.layout`` (``seathru.io.manifest.LayoutRecord``; ``masks``:
+        how many of the views found have a mask of the dataset's own)."""
         return {"layout": self.layout, "root": str(self.root), "images": self.folder,
                 "reason": self.reason, "kind": self.kind, "files": len(self.files),
-                "missing": self.missing}
+                "missing": self.missing, "masks": len(self.masks)}
 
 
 def _existing(path: Path, stems: dict[Path, dict[str, Path]]) -> Path | None:
@@ -447,6 +455,48 @@ def _nerfstudio_file(file_path: str, images: str) -> str:
     if len(parts) > start + 1 and parts[start] == "images":
         return str(Path(images, *parts[start + 1:]))
     return str(Path(images, Path(file_path).name))
+
+
+def _nerfstudio_mask(base: Path, mask_path: str, images: str) -> Path:
+    """The mask file of a frame: ``mask_path`` relative to transforms.json's folder, or with
+    ``images=images_<N>`` nerfstudio's ``masks_<N>/<file name>`` when that file exists (else the
+    full-size mask, resized to the image by ingest)."""
+    downscaled = re.fullmatch(r"images_(\d+)", images)
+    if downscaled:
+        smaller = base / f"masks_{downscaled[1]}" / Path(mask_path).name
+        if smaller.is_file():
+            return smaller
+    return base / mask_path
+
+
+def read_source_mask(path: str | Path, width: int, height: int) -> np.ndarray:
+    """A dataset's own mask (nerfstudio ``mask_path``) as a boolean ``(height, width)`` array,
+    True = use the pixel: nonzero in any channel (nerfstudio: 0 = ignore). A mask of another
+    size with the image's aspect ratio (a downscaled image, RAW half size) is resized to it,
+    nearest neighbour, as nerfstudio resizes masks.
+
+    Raises:
+        PipelineError: naming the mask when it is missing, unreadable, or of another shape.
+
+    Example::
+
+        read_source_mask("masks/f1.png", 4000, 3000)   # (3000, 4000) bool
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise PipelineError(f"{path}: the frame's mask_path file is not there; add it, or "
+                            "remove mask_path from the frame in transforms.json")
+    mask = read_image(path)
+    mask = np.any(mask > 0, axis=2) if mask.ndim == 3 else mask > 0
+    found = (mask.shape[1], mask.shape[0])
+    if found == (width, height):
+        return mask
+    if abs(found[0] * height - found[1] * width) > max(found[0], width):  # aspect differs
+        raise PipelineError(f"{path}: mask of {found[0]}x{found[1]} pixels does not fit its "
+                            f"image of {width}x{height} (a mask must be the image's size, or "
+                            "that size scaled)")
+    return cv2.resize(mask.astype(np.uint8), (width, height),
+                      interpolation=cv2.INTER_NEAREST).astype(bool)
 
 
 def layout_images(layout: str, root: Path, images: str = "auto") -> LayoutImages:
@@ -493,6 +543,10 @@ def layout_images(layout: str, root: Path, images: str = "auto") -> LayoutImages
             rename = dict(zip(frame_names(listed), names))
             found.files = [(file, rename[name]) for file, name in found.files]
             found.missing = [{**m, "name": rename[m["name"]]} for m in found.missing]
+        present = {name for _, name in found.files}
+        found.masks = {name: _nerfstudio_mask(path.parent, frame["mask_path"], images)
+                       for name, frame in zip(names, frames) if name in present
+                       and isinstance(frame.get("mask_path"), str) and frame["mask_path"]}
         return found
     raise ValueError(f"unknown layout {layout!r}; layouts are {', '.join(LAYOUTS)}")
 

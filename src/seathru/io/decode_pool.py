@@ -3,7 +3,8 @@
 Two passes, one file per task, so a dataset never has to fit in memory:
 
 1. :func:`decode_one` decodes a file, resizes it to ``max_size``, writes the unscaled linear
-   image and its validity mask into the work folder and returns metadata and a pixel sample;
+   image and its validity mask (clipping, and the dataset's own mask where it has one) into
+   the work folder and returns metadata and a pixel sample;
 2. :func:`finish_one` applies the dataset-level linear map (estimated in between from the
    samples, ``seathru.radiometry.dataset_transform``) and writes the final linear image, its
    LLFF ``linear_<N>/`` and ``masks_<N>/`` copies and the 8-bit matching copy.
@@ -18,14 +19,16 @@ import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 import tifffile
 
+from seathru.errors import PipelineError
 from seathru.io import raw as rawio
+from seathru.io.dataset_readers import read_source_mask
 from seathru.io.image_folder import RejectedFile
 from seathru.io.images import read_mask, write_8bit, write_float_tiff, write_mask
 from seathru.radiometry import linearise
@@ -46,6 +49,7 @@ class DecodeTask:
     max_size: int
     mask_dilation: int
     sample_pixels: int
+    mask: str | None = None     # the dataset's own mask (nerfstudio mask_path; 0 = ignore)
 
 
 @dataclass
@@ -98,12 +102,22 @@ def decode_one(task: DecodeTask) -> Decoded:
     result.black_clipped_fraction = float(decoded.black_clipped.mean())
     invalid = linearise.dilate_invalid(invalid, task.mask_dilation)
     height, width = image.shape[:2]
+    try:
+        kept = None if task.mask is None else read_source_mask(task.mask, width, height)
+    except PipelineError as exc:
+        result.reason = str(exc)
+        return result
+    except Exception as exc:  # noqa: BLE001 - a bad mask rejects its image, not the dataset
+        result.reason = f"{task.mask}: mask cannot be read ({type(exc).__name__}: {exc})"
+        return result
     result.source_size = [width, height]
     size = linearise.fit_size(width, height, task.max_size)
     image = linearise.resize_area(image, size)
     valid = linearise.resize_mask(~invalid, size)
     result.width, result.height = size
-    result.invalid_fraction = float(1.0 - valid.mean())
+    result.invalid_fraction = float(1.0 - valid.mean())   # clipping only, not the given mask
+    if kept is not None:
+        valid &= linearise.resize_mask(kept, size)
 
     work = Path(task.work_dir)
     write_float_tiff(work / "linear" / f"{task.name}.tiff", image)
@@ -238,10 +252,13 @@ class WorkerPool:
         self.close()
 
 
-def decode_all(pool: WorkerPool, tasks: Sequence[DecodeTask]
-               ) -> tuple[list[Decoded], list[RejectedFile]]:
+def decode_all(pool: WorkerPool, tasks: Sequence[DecodeTask],
+               masks: dict[str, str] | None = None) -> tuple[list[Decoded], list[RejectedFile]]:
     """Pass 1 over ``tasks``: the decoded images, and the files rejected with a reason (each
-    logged as a warning), both in task order."""
+    logged as a warning), both in task order. ``masks``: view name -> the dataset's own mask
+    of that view (``seathru.io.image_folder.InputImages.masks``), set on its task."""
+    tasks = [replace(task, mask=masks[task.name]) if masks and task.name in masks else task
+             for task in tasks]
     decoded: list[Decoded] = []
     rejected: list[RejectedFile] = []
     for task, result in zip(tasks, pool.map(decode_one, tasks)):

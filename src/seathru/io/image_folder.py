@@ -11,7 +11,7 @@ images a posed dataset holds in its own layout (``seathru.io.dataset_readers.lay
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypedDict
 
@@ -124,7 +124,8 @@ def select_paths(files: list[tuple[Path, str]], kind: str
 class InputImages:
     """What the ingest step decodes: ``selected`` ``(path, name, kind)``, ``rejected`` files,
     the ``detection`` dict (:func:`select_paths`), the ``folder`` read, the ``subdir`` (image
-    folder) used, and for a posed layout its ``layout`` record and ``reason``."""
+    folder) used, and for a posed layout its ``layout`` record, ``reason`` and the ``masks`` its
+    frames name (view name -> file: nerfstudio ``mask_path``)."""
 
     folder: Path
     subdir: str | None
@@ -133,6 +134,7 @@ class InputImages:
     detection: dict[str, Any]
     layout: dict | None = None
     reason: str = ""
+    masks: dict[str, str] = field(default_factory=dict)
 
 
 def find_inputs(given: Path, subdir: str | None, layout: str | None, images: str,
@@ -149,4 +151,5 @@ def find_inputs(given: Path, subdir: str | None, layout: str | None, images: str
     found = layout_images(layout, Path(given), images)
     kind = found.kind if found.kind and kind == "auto" else kind
     return InputImages(found.root, found.folder, *select_paths(found.files, kind),
-                       layout=found.record(), reason=found.reason)
+                       layout=found.record(), reason=found.reason,
+                       masks={name: str(path) for name, path in found.masks.items()})

@@ -16,7 +16,7 @@ steps (``poses``) find the images.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Sequence, TypedDict
+from typing import Any, NotRequired, Sequence, TypedDict
 
 import numpy as np
 
@@ -89,6 +89,7 @@ class LayoutRecord(TypedDict):
     kind: str | None            # linear where the layout says so (images_wb), else None
     files: int                  # image files found
     missing: list[MissingFrame]  # listed by the dataset, not there (skipped)
+    masks: NotRequired[int]     # views with a mask of the dataset's own (nerfstudio mask_path)
 
 
 class _ManifestInputOptional(TypedDict, total=False):

@@ -21,9 +21,9 @@ k_i = median(E) / E_i, E = t * ISO / N^2 from EXIF (missing fields: k = 1, with 
 --wb none, camera (dataset median of the as-shot gains) or percentile (SeaThru-NeRF's recipe:
 each channel / its 99.8th percentile, from at most --stats-pixels pixels per image).
 
-Masks: a pixel is invalid where it is clipped (RAW: a CFA sample >= --saturation-threshold x
-white level, or 0; encoded: the top code in a channel, or 0 in all: one 0 is open water's red),
-grown by --mask-dilation pixels; a resized mask keeps a pixel valid only if all under it are.
+Masks: a pixel is invalid where clipped (RAW: a CFA sample >= --saturation-threshold x white
+level, or 0; encoded: the top code in a channel, or 0 in all: one 0 is open water's red), grown
+by --mask-dilation pixels, or 0 in its nerfstudio mask_path; resized: valid if all under it are.
 
 Unusable files (unsupported, stripped, truncated, constant output) are rejected with a reason and
 the rest continue; the step fails if fewer than --min-images remain. Images are decoded in
@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> None:
 
     out = Path(args.out)
     with atomic_dir(out) as work, WorkerPool(workers) as pool:
-        decoded, failed = decode_all(pool, [
+        decoded, failed = decode_all(pool, masks=found.masks, tasks=[
             DecodeTask(str(path), name, kind, str(work), raw_settings, cfg.max_size,
                        cfg.mask_dilation, sample_pixels) for path, name, kind in selected])
         rejected += failed

@@ -29,7 +29,13 @@ Writes to ``--out``:
   the Pareto fronts (``seathru.eval.frontier``); ``frontier.csv``: one row per run, with the
   time it needed to get within 0.5 dB of its own final PSNR;
 - ``strips/<dataset>.png``: ground truth | full render | restored | depth | backscatter for a
-  few held-out views.
+  few held-out views;
+- ``charts/<dataset>.png``: for a dataset whose evaluation measured a colour chart, its
+  patches: reference, photo, ingest image and restored render.
+
+Datasets evaluated with ``evaluate.protocol=nerfbaselines`` get that protocol's means beside
+ours (``nerfbaselines_psnr``, ``_ssim``, ``_lpips``), datasets with a colour chart its mean
+CIEDE2000 and grey angular error per image (``chart_*``; a table of their own on the page).
 """
 
 from __future__ import annotations
@@ -43,7 +49,7 @@ from pathlib import Path
 from seathru import settings
 from seathru.eval import report_plots as plots
 from seathru.eval.frontier import frontier_summary, runs_by_dataset
-from seathru.eval.report import render_html, summary_table
+from seathru.eval.report import measured_chart, render_html, summary_table
 from seathru.io.atomic import atomic_dir, write_bytes, write_text
 from seathru.io.report_inputs import collect_record, read_strip_images
 from seathru.io.sheet import expand_sweeps, read_sheet, variant_options
@@ -121,9 +127,17 @@ def run(args: argparse.Namespace) -> None:
             if figure is not None:
                 strips[record.dataset] = plots.figure_png(figure)
                 write_bytes(tmp / f"{record.dataset}.png", strips[record.dataset])
+    charts = {}
+    with atomic_dir(out / "charts") as tmp:
+        for record in records:
+            chart = measured_chart(record.summary)
+            if chart is not None and (figure := plots.plot_chart_swatches(record.dataset,
+                                                                          chart)) is not None:
+                charts[record.dataset] = plots.figure_png(figure)
+                write_bytes(tmp / f"{record.dataset}.png", charts[record.dataset])
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     write_text(out / "summary.html", render_html(table, records, pngs, strips, stamp,
-                                                 frontier, fronts))
+                                                 frontier, fronts, charts))
     failed = [r.dataset for r in records if r.status != "ok"]
     log.info("report: %d datasets, %d without results%s, %d with warnings", len(records),
              len(failed), f" ({', '.join(failed)})" if failed else "",
