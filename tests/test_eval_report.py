@@ -339,3 +339,122 @@ def test_chart_swatches_show_the_measured_colours_at_the_errors_exposure():
     plt.close(figure)
     assert chart_swatches({**chart, "chart": "unknown-chart"}) is None
     assert plot_chart_swatches("x", {**chart, "stored": None, "ingest": None}) is None
+
+
+# -- settings the train step chose: capacity level, passes, reasons ----------------------------
+
+AUTO_CAPACITY = {"requested": "auto", "chosen": "fast", "changed": {"field.plane_res": [96, 192,
+                                                                                        256]},
+                 "kept_explicit": ["sampler.samples_per_ray"],
+                 "scene": {"train_pixels": 20480, "images": 8, "width": 64, "height": 40,
+                           "footprint_res": 180.0},
+                 "device_type": "cpu", "min_passes": 1.0,
+                 "levels": {"fast": {"finest_plane": 256, "expected_passes": 3.1,
+                                     "fits_scene": True, "fits_budget": True}},
+                 "reason": "fast: finest tri-plane 256 cells <for> a scene of 180 footprints"}
+
+
+def _chosen(dataset: str, capacity: dict | None, run: dict | None, psnr: float = 25.0,
+            **record) -> DatasetRecord:
+    selection = {"requested": "auto", "chosen": "global", "final_mode": "global",
+                 "reason": "backscatter & attenuation <measurable>"}
+    if capacity is not None:
+        selection["capacity"] = capacity
+    return DatasetRecord(dataset, summary=_summary(dataset, psnr), selection=selection,
+                         training_run=run, **record)
+
+
+def test_capacity_level_and_passes_from_the_selection_and_the_model():
+    from seathru.eval.report import capacity_level, training_passes
+
+    auto = _chosen("a", AUTO_CAPACITY, {"steps": 300, "batch_rays": 1024, "preset": "auto"})
+    assert capacity_level(auto) == "auto \u2192 fast"
+    assert training_passes(auto) == pytest.approx(300 * 1024 / 20480)
+    named = _chosen("q", {"requested": "quality", "chosen": "quality"},
+                    {"steps": 300, "batch_rays": 1024, "preset": "quality"})
+    assert capacity_level(named) == "quality"
+    assert training_passes(named) is None                 # a named preset records no scene
+    # older runs: no capacity record; the preset of model.pt's config, else nothing
+    assert capacity_level(_chosen("o", None, {"steps": 10, "preset": "balanced"})) == "balanced"
+    old = _chosen("o", None, None)
+    assert capacity_level(old) is None and training_passes(old) is None
+    for run in ({"batch_rays": 1024}, {"steps": 300}, {"steps": 0, "batch_rays": 1024}, None):
+        assert training_passes(_chosen("x", AUTO_CAPACITY, run)) is None
+    # the evaluation summary's copy of selection.json serves when the record has none
+    copied = DatasetRecord("c", summary=_summary("c", 20.0),
+                           training_run={"steps": 20, "batch_rays": 2048})
+    copied.summary.medium_selection = {"chosen": "off", "capacity": AUTO_CAPACITY}
+    assert capacity_level(copied) == "auto \u2192 fast"
+    assert training_passes(copied) == pytest.approx(2.0)
+
+
+def test_summary_table_shows_capacity_and_passes_only_where_recorded():
+    records = [_chosen("auto", AUTO_CAPACITY, {"steps": 100, "batch_rays": 2048}),
+               _chosen("named", {"requested": "quality", "chosen": "quality"},
+                       {"steps": 100, "batch_rays": 2048}),
+               DatasetRecord("broken", status="failed", failed_step="train", error="boom")]
+    table = summary_table(records)
+    columns = list(table.columns)
+    assert columns.index("capacity") == columns.index("train_steps") + 1
+    assert columns.index("passes") == columns.index("capacity") + 1
+    rows = table.set_index("dataset")
+    assert rows.loc["auto", "capacity"] == "auto \u2192 fast"
+    assert rows.loc["auto", "passes"] == pytest.approx(10.0)
+    assert rows.loc["named", "capacity"] == "quality" and pd.isna(rows.loc["named", "passes"])
+    assert pd.isna(rows.loc["broken", "capacity"])
+    assert rows.loc["auto", "medium"] == "global"          # from the record's selection
+    old = summary_table([DatasetRecord("old", summary=_summary("old", 20.0))])
+    assert "capacity" not in old.columns and "passes" not in old.columns
+
+
+def test_html_says_why_each_setting_was_chosen_escaped():
+    records = [_chosen("reef", AUTO_CAPACITY, {"steps": 100, "batch_rays": 2048}),
+               _chosen("reef+quality", {"requested": "quality", "chosen": "quality"}, None,
+                       base="reef", variant="quality"),
+               DatasetRecord("pending", status="failed", error="not run")]
+    page = render_html(summary_table(records), records, {}, {}, "now")
+    section = page.split("<h2>Settings chosen</h2>")[1].split("<h2>")[0]
+    paragraphs = re.findall(r'<p class="chosen">(.*?)</p>', section)
+    assert len(paragraphs) == 2 and "pending" not in section
+    reef, quality = paragraphs
+    assert reef.startswith("<b>reef</b>: capacity <code>auto \u2192 fast</code>")
+    assert "256 cells &lt;for&gt; a scene" in reef and "<for>" not in reef
+    assert "kept as set: sampler.samples_per_ray" in reef
+    assert ("Medium <code>global</code> (requested auto): backscatter &amp; attenuation "
+            "&lt;measurable&gt;.") in reef
+    assert "<b>reef+quality</b>: capacity <code>quality</code> (set by train.preset=quality)" \
+        in quality
+    summary = page.split('<table class="summary">')[1].split("</table>")[0]
+    assert "<th>capacity</th><th>passes</th>" in summary
+    assert "<td>auto \u2192 fast</td><td>10</td>" in summary   # 100 x 2048 / 20480
+    plain = render_html(summary_table(records[2:]), records[2:], {}, {}, "now")
+    assert "Settings chosen" not in plain
+
+
+def test_frontier_labels_each_run_with_its_capacity_level():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from seathru.eval.frontier import frontier_summary
+    from seathru.eval.report_plots import plot_frontier
+
+    runs = [_chosen("demo", AUTO_CAPACITY, {"steps": 100, "batch_rays": 1024}, 24.0),
+            _chosen("demo+quality", {"requested": "quality", "chosen": "quality"},
+                    {"steps": 100, "batch_rays": 1024}, 25.0, base="demo", variant="quality"),
+            _chosen("demo+old", None, None, 23.0, base="demo", variant="old")]
+    for run in runs:
+        run.summary.render.seconds_per_frame = 0.5
+    table = frontier_summary(runs).set_index("run")
+    assert table.loc["demo", "capacity"] == "auto \u2192 fast"
+    assert table.loc["demo+quality", "capacity"] == "quality"
+    assert pd.isna(table.loc["demo+old", "capacity"])
+    assert table.loc["demo", "passes"] == pytest.approx(5.0)
+    assert pd.isna(table.loc["demo+quality", "passes"])
+    figure = plot_frontier("demo", runs)
+    labels = {line.get_label() for axes in figure.axes[:2] for line in axes.get_lines()}
+    assert {"demo [auto \u2192 fast] (final only)", "demo+quality [quality] (final only)",
+            "demo+old (final only)", "demo [auto \u2192 fast]",
+            "demo+quality [quality]"} <= labels
+    plt.close(figure)

@@ -16,9 +16,24 @@ import pytest
 from seathru.cli import main
 from seathru.io.cameras import read_cameras
 from seathru.io.images import read_image
+from seathru.io.model import read_training_record, save_model
 from seathru.io.warnings import step_warning, write_warnings
 from seathru.steps.render import render_dataset
 from tests.test_render_evaluate import RENDER_SETTINGS, make_fake_dataset
+
+# what the train step recorded of each run: selection.json's capacity and model.pt
+CAPACITY = {"sim": {"requested": "auto", "chosen": "fast", "changed": {"sampler.samples_per_ray":
+                                                                       12},
+                    "kept_explicit": [], "scene": {"train_pixels": 51200, "images": 8,
+                                                   "width": 80, "height": 80,
+                                                   "footprint_res": 150.0},
+                    "device_type": "cpu", "min_passes": 1.0, "levels": {},
+                    "reason": "fast: about 2.0 passes over the 51,200 training pixels"},
+            "real": {"requested": "quality", "chosen": "quality"}}
+MODEL_RECORD = {"sim": ({"batch_rays": 1024, "preset": "auto"},
+                        {"steps": 100, "elapsed_s": 41.5, "stopped_by": "steps"}),
+                "real": ({"batch_rays": 4096, "preset": "quality"},
+                         {"steps": 100, "elapsed_s": 41.5, "stopped_by": "time"})}
 
 ERROR_MESSAGE = ("results/broken/ingest/IMG_0003.NEF: the raw image data is missing "
                  "(stripped file?); remove it from the dataset")
@@ -30,6 +45,12 @@ def report(tmp_path_factory):
     results, logs = base / "results", base / "logs"
     for dataset, truth, seed in (("sim", True, 0), ("real", False, 1)):
         fake = make_fake_dataset(results / dataset, seed=seed, noise=0.002 + 0.01 * seed)
+        selection = json.loads((fake["train"] / "selection.json").read_text())
+        (fake["train"] / "selection.json").write_text(json.dumps(
+            {**selection, "capacity": CAPACITY[dataset]}))
+        config, training = MODEL_RECORD[dataset]
+        save_model(fake["train"] / "model.pt", {"format": "test", "config": config,
+                                                "training": training})
         render_dataset(fake["render_fn"], read_cameras(fake["poses"] / "cameras.json"),
                        results / dataset / "render", dict(RENDER_SETTINGS, path_frames=0))
         arguments = ["evaluate", "--renders", str(results / dataset / "render"),
@@ -40,6 +61,7 @@ def report(tmp_path_factory):
             arguments += ["--truth", str(fake["truth"])]
         assert main(arguments) == 0
         (logs / dataset).mkdir(parents=True)
+        # sim's log has no "stopped by": model.pt's record says
         (logs / dataset / "train.log").write_text(
             "step 100 loss 0.005\n" + ("trained 100 steps in 42 s (stopped by time; 2.4 steps/s)"
                                        "\n" if dataset == "real" else ""))
@@ -109,7 +131,55 @@ def test_warnings_reach_the_needs_a_look_column(report):
     assert "<h2>Needs a look</h2>" in page and "2 with warnings" in page
     assert "attempts 1 and 2 disagree on the poses" in page
     assert "stopped at its time budget" in page   # real's train.log: stopped by time
-    assert "reached train.steps" not in page.split("<b>real</b>")[1].split("</ul>")[0]
+    assert "reached train.steps" not in page.split("<b>real</b><ul>")[1].split("</ul>")[0]
+
+
+def test_capacity_level_passes_and_reasons_reach_the_report(report):
+    table = pd.read_csv(report["out"] / "summary.csv").set_index("dataset")
+    assert table.loc["sim", "capacity"] == "auto \u2192 fast"
+    assert table.loc["real", "capacity"] == "quality"
+    assert table.loc["sim", "passes"] == pytest.approx(100 * 1024 / 51200)
+    assert pd.isna(table.loc["real", "passes"])          # a named preset records no pixels
+    assert table.loc[["broken", "pending"], "capacity"].isna().all()
+    frontier = pd.read_csv(report["out"] / "frontier.csv").set_index("run")
+    assert frontier.loc["sim", "capacity"] == "auto \u2192 fast"
+    assert frontier.loc["real", "capacity"] == "quality"
+    assert frontier.loc["sim", "passes"] == pytest.approx(2.0)
+    page = (report["out"] / "summary.html").read_text()
+    chosen = page.split("<h2>Settings chosen</h2>")[1].split("<h2>")[0]
+    assert "<b>sim</b>: capacity <code>auto \u2192 fast</code> (fast: about 2.0 passes over " \
+        "the 51,200 training pixels)" in chosen
+    assert "<b>real</b>: capacity <code>quality</code> (set by train.preset=quality)" in chosen
+    assert "Medium <code>seathru</code>: test." in chosen   # selection.json's reason
+    assert "broken" not in chosen
+    # sim's log does not say what stopped training: model.pt's record does (train.steps)
+    sim = page.split("<b>sim</b><ul>")[1].split("</ul>")[0]
+    assert "reached train.steps" in sim
+
+
+def test_training_record_of_the_model_and_a_damaged_one(tmp_path, caplog):
+    from seathru.errors import PipelineError
+    from seathru.io.report_inputs import read_run_record
+
+    save_model(tmp_path / "model.pt", {"config": {"batch_rays": 512, "preset": "fast",
+                                                  "steps": 9},
+                                       "state_dict": {"w": torch_zeros(3)},
+                                       "training": {"steps": 7, "stopped_by": "time"}})
+    assert read_training_record(tmp_path / "model.pt") == {"steps": 7, "stopped_by": "time",
+                                                           "batch_rays": 512, "preset": "fast"}
+    save_model(tmp_path / "old.pt", {"config": {"steps": 9}})
+    assert read_training_record(tmp_path / "old.pt") == {}
+    assert read_training_record(tmp_path / "absent.pt") is None
+    (tmp_path / "bad.pt").write_bytes(b"not a torch file")
+    with pytest.raises(PipelineError, match="bad.pt: cannot be read"):
+        read_training_record(tmp_path / "bad.pt")
+    assert read_run_record(tmp_path / "bad.pt") is None and "bad.pt" in caplog.text
+
+
+def torch_zeros(n: int):
+    import torch
+
+    return torch.zeros(n)
 
 
 def test_plots_and_strips_are_images(report):

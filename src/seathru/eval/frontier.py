@@ -10,7 +10,9 @@ gain of the final evaluation) and the water against the true water
 (:func:`snapshot_water_errors`, converted as ``seathru.eval.truth.compare_water`` does). The
 report puts the runs of one scene (a sheet row and its sweep variants) on the same axes: the
 Pareto front (:func:`pareto_front`: the best PSNR reached by any run within a time) and the time
-each run needed to get within 0.5 dB of its own final PSNR (:func:`time_to_within`).
+each run needed to get within 0.5 dB of its own final PSNR (:func:`time_to_within`), each run
+labelled with its capacity level (``auto → fast``, ``quality``: so ``train.preset=auto`` compares
+with the named presets) and the passes over its training pixels it made.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from seathru.eval import metrics
-from seathru.eval.report import DatasetRecord
+from seathru.eval.report import DatasetRecord, capacity_level, training_passes
 from seathru.eval.truth import WATER_KEYS, compare_water
 from seathru.radiometry.linearise import block_average
 
@@ -33,7 +35,8 @@ FRONTIER_COLUMNS = ("step", "elapsed_s", "test_psnr_images", "restored_psnr_line
 WITHIN_DB = 0.5
 WITHIN_COLUMN = f"time_to_within_{WITHIN_DB:g}db_s"
 SHEET_ROW = "(sheet row)"    # the variant cell of a sheet's own row in the table
-SUMMARY_COLUMNS = ("dataset", "variant", "run", "status", "psnr_linear", "train_time_s",
+SUMMARY_COLUMNS = ("dataset", "variant", "run", "capacity", "passes", "status", "psnr_linear",
+                   "train_time_s",
                    "snapshot_final_psnr", WITHIN_COLUMN, "within_share_of_training",
                    "restored_psnr_linear", "snapshot_final_restored_psnr",
                    "render_s_per_frame", "snapshots")
@@ -197,11 +200,13 @@ def final_point(record: DatasetRecord) -> dict[str, float | None]:
 
 
 def frontier_summary(records: Iterable[DatasetRecord]) -> pd.DataFrame:
-    """One row per run (:data:`SUMMARY_COLUMNS`): the final evaluation's held-out PSNR and its
-    training time, the last snapshot's PSNR and the time the run needed to get within
-    :data:`WITHIN_DB` dB of it (:func:`time_to_within`, also as a share of the training time),
-    restored-vs-clean where the truth is known, and the render time per frame. The share is of
-    the last snapshot's time (the end of training, on the snapshots' clock)."""
+    """One row per run (:data:`SUMMARY_COLUMNS`): its capacity level and passes over its
+    training pixels (``seathru.eval.report.capacity_level``, ``training_passes``; empty where
+    not recorded), the final evaluation's held-out PSNR and its training time, the last
+    snapshot's PSNR and the time the run needed to get within :data:`WITHIN_DB` dB of it
+    (:func:`time_to_within`, also as a share of the training time), restored-vs-clean where the
+    truth is known, and the render time per frame. The share is of the last snapshot's time (the
+    end of training, on the snapshots' clock)."""
     rows = []
     for base, runs in runs_by_dataset(records).items():
         for record in runs:
@@ -213,6 +218,7 @@ def frontier_summary(records: Iterable[DatasetRecord]) -> pd.DataFrame:
             snapshot_end = float(times[-1]) if len(times) else None   # the run's own clock
             rows.append({
                 "dataset": base, "variant": record.variant or SHEET_ROW, "run": record.dataset,
+                "capacity": capacity_level(record), "passes": training_passes(record),
                 "status": record.status, "psnr_linear": final["psnr_linear"],
                 "train_time_s": train_time,
                 "snapshot_final_psnr": float(psnr[-1]) if len(psnr) else None,

@@ -13,6 +13,12 @@ means sit beside ours as ``<protocol>_psnr`` / ``_ssim`` / ``_lpips`` (:func:`pr
 where it measured a colour chart, the mean CIEDE2000 and grey angular error of the photo, the
 ingest image and the restored render are the ``chart_*`` columns (:func:`chart_cells`) and the
 page's "Colour charts" section (:func:`chart_rows`). Datasets without them add nothing.
+
+What the train step chose, from its ``selection.json`` and ``model.pt``: the capacity level
+(``capacity``: ``auto → fast`` when ``train.preset=auto`` chose it, ``quality`` for a named
+preset: :func:`capacity_level`), the passes over the training pixels the run made (``passes``:
+:func:`training_passes`) and, in the page's "Settings chosen" section, why the capacity and the
+medium model were chosen (:func:`settings_notes`).
 """
 
 from __future__ import annotations
@@ -43,7 +49,7 @@ TABLE_COLUMNS = (
     "psnr_linear", "ssim_linear", "psnr_srgb", "ssim_srgb", "lpips",
     "restored_psnr_linear", "restored_ssim_linear", "full_vs_clean_psnr_linear",
     "depth_median_abs_rel", "depth_corr", *CHART_COLUMNS, "train_time_s", "train_steps",
-    "render_fps", "render_resolution", "medium")
+    "capacity", "passes", "render_fps", "render_resolution", "medium")
 ALWAYS_SHOWN = ("dataset", "status", "warnings", "needs_a_look", "error", "failed_step")
 #: A protocol's means shown, in this order, as ``<protocol>_<metric>`` after ``lpips``.
 PROTOCOL_METRICS = ("psnr", "ssim", "lpips", "lpips_vgg")
@@ -81,6 +87,10 @@ class DatasetRecord:
     base: str = ""                      # the sheet's dataset a sweep run is on ("" = itself)
     variant: str = ""                   # its sweep variant ("" for the sheet's own row)
     frontier: pd.DataFrame | None = None   # evaluate/frontier.csv (seathru.io.frontier)
+    selection: dict | None = None       # the train step's selection.json (medium, capacity)
+    # model.pt's training record (steps, elapsed_s, stopped_by, ...) with its config's
+    # batch_rays and preset (seathru.io.model.read_training_record)
+    training_run: dict | None = None
 
 
 def diagnose_failure(logs: Sequence[StepLog], step_order: Sequence[str]) -> tuple[str | None, str]:
@@ -121,6 +131,89 @@ def medium_name(selection) -> str | None:
         if key in selection:
             return str(selection[key])
     return json.dumps(selection)[:80]
+
+
+def run_selection(record: DatasetRecord) -> dict | None:
+    """The train step's ``selection.json`` of a run: the record's, else the copy in its
+    evaluation summary."""
+    if isinstance(record.selection, dict):
+        return record.selection
+    selection = record.summary.medium_selection if record.summary is not None else None
+    return selection if isinstance(selection, dict) else None
+
+
+def _capacity_record(record: DatasetRecord) -> dict | None:
+    capacity = (run_selection(record) or {}).get("capacity")
+    return capacity if isinstance(capacity, dict) and capacity.get("chosen") else None
+
+
+def capacity_level(record: DatasetRecord) -> str | None:
+    """The capacity level a run trained at: ``auto → <level>`` when ``train.preset=auto``
+    chose it, the preset's name when one was named; from ``selection.json``'s ``capacity``,
+    else the preset in ``model.pt``'s config (older runs); None without either.
+
+    Example::
+
+        capacity_level(DatasetRecord("d", selection={"capacity": {"requested": "auto",
+                                                                  "chosen": "fast"}}))
+        # -> "auto → fast"
+    """
+    capacity = _capacity_record(record)
+    if capacity is None:
+        preset = (record.training_run or {}).get("preset")
+        return str(preset) if preset else None
+    requested, chosen = capacity.get("requested"), str(capacity["chosen"])
+    return chosen if requested in (None, "", chosen) else f"{requested} \u2192 {chosen}"
+
+
+def _positive(value) -> float | None:
+    number = value if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+    return float(number) if number is not None and np.isfinite(number) and number > 0 else None
+
+
+def training_passes(record: DatasetRecord) -> float | None:
+    """Passes over the training pixels the run made: ``steps x batch_rays / train_pixels``,
+    steps and batch from ``model.pt``, the pixels from the capacity record's ``scene``; None
+    when one of them is unknown (a named preset records no scene, older runs no capacity).
+
+    Example::
+
+        training_passes(DatasetRecord("d", selection={"capacity": {"chosen": "fast",
+                        "scene": {"train_pixels": 20000}}},
+                        training_run={"steps": 100, "batch_rays": 1000}))   # -> 5.0
+    """
+    scene = (_capacity_record(record) or {}).get("scene")
+    pixels = _positive(scene.get("train_pixels")) if isinstance(scene, dict) else None
+    run = record.training_run or {}
+    steps, batch = _positive(run.get("steps")), _positive(run.get("batch_rays"))
+    if pixels is None or steps is None or batch is None:
+        return None
+    return steps * batch / pixels
+
+
+def settings_notes(records: Sequence[DatasetRecord]) -> list[dict]:
+    """Per run with a recorded choice (the page's "Settings chosen"): ``dataset``,
+    ``capacity`` (:func:`capacity_level`), ``capacity_reason``, ``kept_explicit`` (settings
+    ``auto`` left as they were set), ``medium`` (:func:`medium_name`), ``medium_requested`` and
+    ``medium_reason``; None where not recorded."""
+    notes = []
+    for record in records:
+        selection, capacity = run_selection(record), _capacity_record(record)
+        level = capacity_level(record)
+        if selection is None and level is None:
+            continue
+        reason = (capacity or {}).get("reason")
+        if reason is None and level is not None:
+            reason = f"set by train.preset={level}" if capacity is not None else (
+                f"train.preset={level} in model.pt (no capacity record)")
+        kept = (capacity or {}).get("kept_explicit")
+        notes.append({"dataset": record.dataset, "capacity": level,
+                      "capacity_reason": None if reason is None else str(reason),
+                      "kept_explicit": [str(k) for k in kept] if isinstance(kept, list) else [],
+                      "medium": medium_name(selection),
+                      "medium_requested": (selection or {}).get("requested"),
+                      "medium_reason": (selection or {}).get("reason")})
+    return notes
 
 
 def stopped_by(lines: Sequence[str]) -> str | None:
@@ -276,6 +369,8 @@ def summary_table(records: Sequence[DatasetRecord]) -> pd.DataFrame:
         training = summary.training if summary else None
         row["train_time_s"] = training.time_s if training else None
         row["train_steps"] = training.steps if training else None
+        row["capacity"] = capacity_level(record)
+        row["passes"] = training_passes(record)
         log = record.train_log
         if row["train_time_s"] is None and log is not None and "wall_time_s" in log:
             row["train_time_s"] = float(log["wall_time_s"].max())
@@ -285,7 +380,7 @@ def summary_table(records: Sequence[DatasetRecord]) -> pd.DataFrame:
         row["render_resolution"] = ("x".join(map(str, resolution))
                                     if isinstance(resolution, list) and len(resolution) == 2
                                     and not isinstance(resolution[0], list) else None)
-        row["medium"] = medium_name(summary.medium_selection if summary else None)
+        row["medium"] = medium_name(run_selection(record))
         rows.append(row)
     table = pd.DataFrame(rows)
     columns = [c for c in _ordered_columns(list(table.columns))
@@ -391,8 +486,9 @@ def render_html(table: pd.DataFrame, records: Sequence[DatasetRecord],
                 frontier: pd.DataFrame | None = None,
                 fronts: Mapping[str, bytes] | None = None,
                 charts: Mapping[str, bytes] | None = None) -> str:
-    """The self-contained report page: the summary table, failures, water against the truth,
-    colour charts, quality against time, and the plots and image strips (PNG bytes) inlined.
+    """The self-contained report page: the summary table, the settings the train step chose and
+    why (:func:`settings_notes`), failures, water against the truth, colour charts, quality
+    against time, and the plots and image strips (PNG bytes) inlined.
 
     Args:
         table: from :func:`summary_table`; its ``chart_*`` columns are shown in the "Colour
@@ -433,4 +529,5 @@ def render_html(table: pd.DataFrame, records: Sequence[DatasetRecord],
             [None if not isinstance(v, str) and pd.isna(v) else v for v in row]
             for row in frontier.itertuples(index=False)],
         fronts=fronts or {}, protocols=protocol_notes(records), chart_rows=chart_rows(records),
+        settings_notes=settings_notes(records),
         chart_labels=[label for _, label in CHART_IMAGES], charts=charts or {})

@@ -4,9 +4,9 @@ one to PNG bytes and closes it). No file I/O.
 - :func:`plot_psnr_vs_time`: held-out PSNR during training against training time, per dataset;
 - :func:`plot_speed_vs_error`: render frames per second and training time against held-out PSNR;
 - :func:`plot_water_parameters`: fitted water parameters per dataset and channel, truth markers;
-- :func:`plot_frontier`: one dataset's runs (its sheet row and sweep variants): held-out PSNR
-  (and restored-vs-clean) of every snapshot against training time, and the final PSNR against
-  render time per frame, each with its Pareto front;
+- :func:`plot_frontier`: one dataset's runs (its sheet row and sweep variants), each labelled
+  with its capacity level: held-out PSNR (and restored-vs-clean) of every snapshot against
+  training time, and the final PSNR against render time per frame, each with its Pareto front;
 - :func:`plot_strip`: ground truth | full render | restored | depth | backscatter for a few
   held-out views of one dataset;
 - :func:`plot_chart_swatches`: a measured colour chart's patches, reference against the photo,
@@ -25,7 +25,8 @@ import pandas as pd
 
 from seathru.eval.colour_chart import CHARTS, lab_to_linear_srgb
 from seathru.eval.frontier import final_point, pareto_front, snapshot_curve
-from seathru.eval.report import CHART_IMAGES, DatasetRecord, water_intervals, water_values
+from seathru.eval.report import (CHART_IMAGES, DatasetRecord, capacity_level, water_intervals,
+                                 water_values)
 from seathru.eval.truth import WATER_KEYS
 from seathru.radiometry.colour import linear_to_srgb
 
@@ -183,6 +184,8 @@ def _log_if_wide(axes, values) -> None:
 
 def plot_frontier(dataset: str, runs: Sequence[DatasetRecord]):
     """One dataset's runs on the same axes, or None when none has a snapshot or a final point.
+    Each run is labelled ``<run> [<capacity level>]`` where its level is known
+    (``seathru.eval.report.capacity_level``: ``auto → fast``, ``quality``).
 
     Left: held-out PSNR on whole images (snapshots, ``frontier.csv``) against training time, per
     run, with restored-vs-clean where the truth is known (dashed); a run without snapshots shows
@@ -199,7 +202,8 @@ def plot_frontier(dataset: str, runs: Sequence[DatasetRecord]):
     figure, (left, right) = plt.subplots(1, 2, figsize=(11.5, 4.4))
     points = {"held": ([], []), "restored": ([], [])}
     for index, (record, times, psnr, (r_times, restored), final) in enumerate(curves):
-        colour, label = f"C{index % 10}", record.dataset
+        level = capacity_level(record)
+        colour, label = f"C{index % 10}", record.dataset + (f" [{level}]" if level else "")
         if len(times):
             left.plot(times, psnr, "-o", ms=4, color=colour, label=label)
             points["held"][0].extend(times)

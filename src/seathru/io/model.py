@@ -61,3 +61,37 @@ def load_model(path: str | os.PathLike, device: torch.device | str = "cpu"):
                             f"{exc}); re-run the 'train' step") from None
     model.eval()
     return model
+
+
+def read_training_record(path: str | os.PathLike) -> dict | None:
+    """What the train step recorded of a run in ``model.pt``, without building the model: its
+    ``training`` record (``steps``, ``elapsed_s``, ``stopped_by``, ...) and, from its config,
+    ``batch_rays`` and ``preset`` (keys absent where the file lacks them: older models).
+
+    The weights are memory-mapped, not read: the report calls this for every run.
+
+    Returns:
+        the record, or None when the file does not exist.
+
+    Raises:
+        PipelineError: the file is not a torch file or not a model (names the file).
+
+    Example::
+
+        read_training_record("results/demo/train/model.pt")
+        # {"steps": 3000, "elapsed_s": 118.2, "stopped_by": "steps", "batch_rays": 1024, ...}
+    """
+    path = Path(path)
+    if not path.is_file():
+        return None
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+    except Exception as exc:  # a truncated or foreign file: say which file, not a traceback
+        raise PipelineError(f"{path}: cannot be read as a model checkpoint ({exc})") from None
+    if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get("config"), dict):
+        raise PipelineError(f"{path}: not a seathru model (no config)")
+    training = checkpoint.get("training")
+    record = dict(training) if isinstance(training, dict) else {}
+    record.update({key: checkpoint["config"][key] for key in ("batch_rays", "preset")
+                   if key in checkpoint["config"]})
+    return record

@@ -1,9 +1,11 @@
 """What the report step reads about one dataset (or one sweep run) from its results and logs.
 
 For ``RESULTS/<dataset>/``: ``evaluate/summary.json``, ``metrics.csv`` and ``frontier.csv``,
-``train/train_log.csv``, ``water.json`` and ``selection.json``, each step's ``warnings.json``
-and the render step's display images ``render/test/<view>/*.png``; ``LOGS/<dataset>/<step>.log``
-for why a dataset without results failed. Everything lands in a
+``train/train_log.csv``, ``water.json`` and ``selection.json`` (the medium model and the
+capacity level chosen, and why; the copy in ``summary.json`` first), ``train/model.pt``'s
+training record (steps, rays per step, preset: ``seathru.io.model.read_training_record``), each
+step's ``warnings.json`` and the render step's display images ``render/test/<view>/*.png``;
+``LOGS/<dataset>/<step>.log`` for why a dataset without results failed. Everything lands in a
 :class:`seathru.eval.report.DatasetRecord`.
 """
 
@@ -73,13 +75,30 @@ def collect_record(row: pd.Series, results: Path, logs: Path | None, step_order:
             log.warning("%s", exc)
     selection = (record.summary.medium_selection if record.summary else None) or read_json(
         base / "train" / "selection.json", missing_ok=True)
+    record.selection = selection if isinstance(selection, dict) else None
+    record.training_run = read_run_record(base / "train" / "model.pt")
     train_log = [s for s in read_step_logs(logs, dataset) if s.step == "train"]
+    stopped = (stopped_by(train_log[0].lines) if train_log else None) or (
+        record.training_run or {}).get("stopped_by")
     record.warnings = read_dataset_warnings(base, step_order) + training_warnings(
-        selection, record.train_log, stopped_by(train_log[0].lines) if train_log else None,
-        rising_db, window)
+        selection, record.train_log, stopped, rising_db, window)
     record.warnings.sort(key=lambda w: step_order.index(w["step"]) if w["step"] in step_order
                          else len(step_order))
     return record
+
+
+def read_run_record(model_path: Path) -> dict | None:
+    """``model.pt``'s training record (``seathru.io.model.read_training_record``); None without
+    the file, or when it cannot be read (logged: the report goes on without it)."""
+    if not Path(model_path).is_file():
+        return None
+    from seathru.io.model import read_training_record   # imports torch: only when needed
+
+    try:
+        return read_training_record(model_path)
+    except PipelineError as exc:
+        log.warning("%s", exc)
+        return None
 
 
 def read_step_logs(logs: Path | None, dataset: str) -> list[StepLog]:

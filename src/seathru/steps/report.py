@@ -3,8 +3,9 @@
 Reads, for each dataset id of the sheet and each of its sweep runs ``<dataset>+<variant>`` (the
 sheet's ``sweep`` column; ``--variants`` gives the configuration's variants:
 ``seathru.io.sheet.expand_sweeps``), ``RESULTS/<dataset>/evaluate/summary.json``,
-``metrics.csv`` and ``frontier.csv``, ``RESULTS/<dataset>/train/train_log.csv`` and
-``water.json``, and the render step's display images
+``metrics.csv`` and ``frontier.csv``, ``RESULTS/<dataset>/train/train_log.csv``,
+``water.json``, ``selection.json`` and ``model.pt``'s training record, and the render step's
+display images
 ``RESULTS/<dataset>/render/test/<view>/*.png`` (``seathru.io.report_inputs``). A dataset without
 a summary is listed as failed, with the stage and message of the last ``seathru <step>: error:``
 line found in its logs (``LOGS/<dataset>/<step>.log``, the most recently written log that has
@@ -18,16 +19,19 @@ model turned off; PSNR still rising by more than ``rising_psnr_db`` over the las
 Writes to ``--out``:
 
 - ``summary.csv``: one row per dataset (status, warnings and their codes, error, held-out PSNR /
-  SSIM / LPIPS, truth metrics of simulated datasets, training time, render speed, medium);
-- ``summary.html``: the same table (datasets with warnings marked), each warning in full, the
-  plots and image strips inlined (self-contained);
+  SSIM / LPIPS, truth metrics of simulated datasets, training time, capacity level (``auto →
+  fast``, ``quality``) and passes over the training pixels, render speed, medium);
+- ``summary.html``: the same table (datasets with warnings marked), each warning in full, why
+  the capacity level and the medium model were chosen ("Settings chosen"), the plots and image
+  strips inlined (self-contained);
 - ``psnr_vs_time.png``: held-out PSNR during training against training time, per dataset;
 - ``speed_vs_error.png``: render frames per second and training time against held-out PSNR;
 - ``water_parameters.png``: fitted water parameters per dataset and channel, truth markers;
 - ``frontier/<dataset>.png``: per sheet dataset, its runs (the row and its sweep variants) on
   the same axes: snapshot PSNR against training time and final PSNR against render time, with
-  the Pareto fronts (``seathru.eval.frontier``); ``frontier.csv``: one row per run, with the
-  time it needed to get within 0.5 dB of its own final PSNR;
+  the Pareto fronts (``seathru.eval.frontier``), each run labelled with its capacity level;
+  ``frontier.csv``: one row per run, with its capacity level and passes and the time it needed
+  to get within 0.5 dB of its own final PSNR;
 - ``strips/<dataset>.png``: ground truth | full render | restored | depth | backscatter for a
   few held-out views;
 - ``charts/<dataset>.png``: for a dataset whose evaluation measured a colour chart, its
