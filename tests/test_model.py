@@ -403,3 +403,31 @@ def test_presets_sit_beneath_explicit_settings():
     assert (paper.field.kind, paper.sampler.kind, paper.medium.mode) == \
         ("mlp", "hierarchical", "view")
     assert TrainConfig.from_dict(paper.to_dict()) == paper
+
+
+def test_veiling_water_varies_only_its_colour_with_direction():
+    medium = Medium("veiling", 0.3, (0.1, 0.2, 0.3), colour_max=1.0)
+    with torch.no_grad():
+        for param in medium.view_net.parameters():
+            param.normal_(0.0, 0.5)
+    dirs = torch.nn.functional.normalize(torch.randn(64, 3, generator=torch.Generator()
+                                                     .manual_seed(0)), dim=-1)
+    attn, bs, colour = medium(dirs)
+    assert torch.allclose(attn, attn[:1].expand_as(attn))
+    assert torch.allclose(bs, bs[:1].expand_as(bs))
+    assert float(colour.std(0).max()) > 1e-3
+    medium.set_mode("view")          # switching between directional modes keeps the network
+    assert float(medium(dirs)[0].std(0).max()) > 1e-3
+
+
+def test_auto_starts_veiling_only_where_the_open_water_changes_with_direction():
+    from seathru import settings as typed
+    from seathru.nerf.model import initial_medium_mode
+
+    config = typed.from_mapping(TrainConfig, {})
+    spread = config.medium.auto_veiling_spread
+    assert initial_medium_mode(config, {"open_water_direction_spread": 2 * spread}) == "veiling"
+    assert initial_medium_mode(config, {"open_water_direction_spread": spread / 2}) == "global"
+    assert initial_medium_mode(config, {}) == "global"
+    fixed = typed.from_mapping(TrainConfig, {"medium": {"mode": "global"}})
+    assert initial_medium_mode(fixed, {"open_water_direction_spread": 1.0}) == "global"

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
+import torch
 
 from seathru.nerf.prepare import veiling_light_estimate
 
@@ -44,3 +46,62 @@ def test_smooth_regions_of_many_colours_are_no_veiling_light():
             image[row:row + 8, :64] = rng.uniform(0.1, 0.9, size=3)
         images.append(image)
     assert veiling_light_estimate(images) is None
+
+
+def _frames(count: int, size=(64, 48)):
+    from seathru.io.cameras import Frame
+
+    frames = []
+    for i in range(count):
+        c2w = np.eye(4)
+        c2w[:3, 3] = [0.3 * i - 0.3, 0.0, 2.0]
+        frames.append(Frame(name=f"f{i}", image=f"f{i}.png", width=size[0], height=size[1],
+                            fx=60.0, fy=60.0, cx=size[0] / 2, cy=size[1] / 2, c2w=c2w.tolist(),
+                            near=0.1, far=4.0))
+    return frames
+
+
+def test_open_water_pixels_reach_the_rays_and_the_scene():
+    from seathru import settings
+    from seathru.io.cameras import CameraSet
+    from seathru.nerf.config import TrainConfig
+    from seathru.nerf.prepare import prepare_run
+
+    rng = np.random.default_rng(3)
+    frames = _frames(3)
+    images = [_dive_image(rng, 16)[:48, :64] for _ in frames]      # 16 of 48 rows open water
+    masks = [None, None, np.ones((48, 64), bool)]
+    masks[2][:, :32] = False                                          # half of one frame masked
+    config = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0})
+    run = prepare_run(config, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
+                      masks)
+    flags = run.data.rays.open_water
+    assert flags is not None and len(flags) == len(run.data)
+    # the blocks at the water's lower edge border on reef: between a sixth and a third
+    assert 1 / 6 - 1e-6 < float(flags.float().mean()) < 1 / 3 + 1e-6
+    assert run.model.scene["open_water_image_share"] == pytest.approx(
+        float(flags.double().mean()), abs=1e-9)
+    batch = run.data.sample(64, torch.Generator().manual_seed(0))
+    assert batch.open_water is not None and batch.open_water.shape == (64,)
+    off = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0,
+                                              "loss": {"open_water_weight": 0.0}})
+    assert prepare_run(off, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
+                       masks).data.rays.open_water is None
+
+
+def test_open_water_brighter_upwards_has_a_direction_spread_and_uniform_water_none():
+    from seathru.nerf.prepare import open_water_direction_spread
+    from seathru.nerf.rays import frame_rays
+
+    frames = _frames(2)
+    masks = [np.ones((48, 64), bool), np.ones((48, 64), bool)]
+    rng = np.random.default_rng(5)
+    uniform = [WATER + rng.normal(0, 0.002, (48, 64, 3)) for _ in frames]
+    graded = []
+    for frame in frames:
+        up = frame_rays(frame)[1].numpy().reshape(48, 64, 3)[..., 1]   # +y: up in the world
+        graded.append(WATER * (1.0 + 0.8 * up[..., None]))
+    flat = open_water_direction_spread(frames, uniform, masks)
+    assert flat < 0.02
+    assert open_water_direction_spread(frames, graded, masks) > 5 * flat
+    assert open_water_direction_spread(frames, uniform, [np.zeros((48, 64), bool)] * 2) == 0.0

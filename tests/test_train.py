@@ -33,8 +33,9 @@ from tests.conftest import REPO_ROOT
 
 torch.set_num_threads(1)
 
-# Small grids and batches: a few hundred steps take seconds on one core.
-FAST = {"field": {"density_res": [32, 48, 64], "plane_res": [128, 192, 256],
+# Small grids and batches: a few hundred steps take seconds on one core. The balanced preset
+# beneath them: these tests are about training, not the capacity auto picks (test_nerf_capacity).
+FAST = {"preset": "balanced", "field": {"density_res": [32, 48, 64], "plane_res": [128, 192, 256],
                   "plane_coarse_res": 32, "density_coarse_res": 16},
         "sampler": {"samples_per_ray": 12}}
 FAST_FLAGS = settings.cli_flags(FAST)
@@ -255,3 +256,38 @@ def test_train_step_leaves_denormals_as_it_found_them(default_scene, tmp_path):
     _train_cli(default_scene / "cameras.json", tmp_path, "--steps", "3", "--batch-rays", "64",
                "--medium.mode", "global")
     assert not _denormals_flushed()
+
+
+def test_open_water_rays_pay_for_object_opacity_while_the_water_is_on():
+    import dataclasses
+
+    from tests.test_nerf_prepare import _dive_image, _frames
+    from seathru.io.cameras import CameraSet
+    from seathru.nerf.prepare import prepare_run
+
+    rng = np.random.default_rng(4)
+    frames = _frames(3)
+    images = [_dive_image(rng, 24)[:48, :64] for _ in frames]
+    config = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0,
+                                                 "loss": {"open_water_weight": 0.5}})
+    run = prepare_run(config, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
+                      [None] * 3)
+    batch = run.data.sample(512, torch.Generator().manual_seed(1))
+    assert bool(batch.open_water.any())
+
+    def loss(weight: float) -> float:
+        run.model.config = dataclasses.replace(
+            run.config, loss=dataclasses.replace(run.config.loss, open_water_weight=weight))
+        trainer = Trainer(run.model, run.data, device="cpu", frames=frames)
+        trainer.generator.manual_seed(7)
+        return float(trainer._loss(batch)[0])
+
+    with torch.no_grad():
+        opacity = 1.0 - run.model(batch.origins, batch.directions, batch.near, batch.far,
+                                  generator=torch.Generator().manual_seed(7)
+                                  ).render.transmittance[:, -1]
+    expected = 0.5 * float(opacity[batch.open_water].mean())
+    assert expected > 1e-3
+    assert loss(0.5) - loss(0.0) == pytest.approx(expected, rel=1e-3)
+    run.model.medium.set_mode("off")
+    assert loss(0.5) == pytest.approx(loss(0.0), rel=1e-6)

@@ -4,7 +4,7 @@
 read too)::
 
     {"format": "seathru-water/1",
-     "mode": "global",                  # off | global | view (the medium model)
+     "mode": "global",                  # off | global | veiling | view (the medium model)
      "units": "...",                    # how to read the numbers
      "scale": 0.15,                     # normalised units per source unit (camera file)
      "sigma_attn": [r, g, b],           # 1/(source unit) = normalised * scale
@@ -12,7 +12,7 @@ read too)::
      "c_med": [r, g, b],                # linear radiance of the training images
      "normalised": {"sigma_attn", "sigma_bs", "c_med"},   # 1/(normalised unit): the source
      "per_source_unit": {"sigma_attn", "sigma_bs"},
-     # mode "view" only: the values above are means over training rays, and
+     # modes "view" and "veiling" only: the values above are means over training rays, and
      "note": "...", "normalised_min": {...}, "min": {...}, "normalised_max": {...}, "max": {...}}
 
 With a global medium, ``uncertainty`` says how well the views determine each number::
@@ -48,9 +48,10 @@ WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
 SIGMA_KEYS = ("sigma_attn", "sigma_bs")
 UNITS = ("sigma_attn and sigma_bs: 1/(source unit) = normalised value * scale (metres for "
          "simulated data); c_med: linear radiance of the training images")
-VIEW_NOTE = ("view-dependent water: values are the mean over training rays; min and max over "
-             "the same rays")
-MODES = ("off", "global", "view")
+VIEW_NOTE = ("direction-dependent water (mode view: all of it; veiling: the veiling light c_med): "
+             "values are the mean over training rays; min and max over the same rays")
+MODES = ("off", "global", "view", "veiling")
+DIRECTIONAL = ("view", "veiling")   # water (or its veiling light) that depends on direction
 UNCERTAINTY_METHOD = (
     "95% intervals around the trained value: Laplace approximation of the profile loss of a "
     "water fit on the model's own surfaces (seathru.nerf.water_fit.laplace_halfwidths), one "
@@ -124,7 +125,7 @@ class WaterReport:
             write_water(out / "water.json", report)
         """
         bounds = {}
-        if params["mode"] == "view":
+        if params["mode"] in DIRECTIONAL:
             bounds = {f"normalised_{b}": WaterValues.from_mapping(params[b], b)
                       for b in ("min", "max")}
         uncertainty = None
@@ -158,7 +159,7 @@ class WaterReport:
         }
         if self.uncertainty:
             data["uncertainty"] = self._uncertainty_dict()
-        if self.mode == "view" and self.normalised_min and self.normalised_max:
+        if self.mode in DIRECTIONAL and self.normalised_min and self.normalised_max:
             data["note"] = VIEW_NOTE
             for bound, values in (("min", self.normalised_min), ("max", self.normalised_max)):
                 data[f"normalised_{bound}"] = values.as_dict()

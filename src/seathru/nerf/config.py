@@ -70,9 +70,11 @@ class SamplerConfig:
 class MediumConfig:
     """The water: attenuation, backscatter and veiling light per colour channel."""
 
-    mode: Literal["auto", "off", "global", "view"] = setting(
+    mode: Literal["auto", "off", "global", "veiling", "view"] = setting(
         "auto", help="auto (the simplest model the images support), off (clear water / air), "
-                     "global (one water per scene), view (depends on view direction, as the "
+                     "global (one water per scene), veiling (global attenuation and "
+                     "backscatter, veiling light by view direction: open water brighter "
+                     "towards the surface), view (all of the water by view direction, as the "
                      "paper)")
     sigma_init: float = setting(0.0, help="initial attenuation and backscatter per normalised "
                                           "unit; 0 = 0.5 / typical range")
@@ -117,6 +119,11 @@ class MediumConfig:
                                                        "the image is negligible")
     auto_attenuation: float = setting(0.02, help="auto: attenuation over the scene depth below "
                                                  "this is negligible")
+    auto_veiling_spread: float = setting(
+        0.1, help="auto: the water starts as veiling (else global) when the open water's "
+                  "colour changes with view direction by more than this share of it (the "
+                  "spread of a linear fit of colour on direction over the training images; "
+                  "measured 0.28 on d3_reef, 0.05 on the uniform water of the survey demo)")
 
 
 @dataclass
@@ -127,6 +134,11 @@ class LossConfig:
                                                            "object transmittance to 0 or 1")
     transmittance_prior_start: float = setting(0.0, help="progress at which the prior starts "
                                                          "(ramped in over 0.1)")
+    open_water_weight: float = setting(
+        0.05, help="weight of the object opacity of rays whose pixel is open water (smooth, "
+                   "reaching the top of the frame: seathru.radiometry.open_water), while the "
+                   "water model is on: open water is the water's own colour, not a surface; "
+                   "0 = off")
     distortion_weight: float = setting(0.01, help="weight of the distortion loss")
     density_tv_weight: float = setting(0.0, help="weight of total variation on the density grid")
     recon_eps: float = setting(1e-3, help="eps of the relative reconstruction loss")
@@ -288,7 +300,8 @@ TRAIN_PRESETS: dict[str, dict] = {
         "sampler": {"kind": "hierarchical", "coarse_samples": 128, "fine_samples": 32},
         "medium": {"mode": "view", "render_method": "paper", "water_before": False,
                    "water_after": False},
-        "loss": {"transmittance_prior_weight": 1e-4, "distortion_weight": 0.0},
+        "loss": {"transmittance_prior_weight": 1e-4, "distortion_weight": 0.0,
+                 "open_water_weight": 0.0},
         "optim": {"lr": 5e-4, "network_lr_scale": 1.0, "medium_lr_scale": 1.0},
         "batch_rays": 1024,
     },

@@ -6,7 +6,11 @@ Modes (``MEDIUM_MODES``):
 - ``off``: all zeros, the renderer then is plain NeRF (clear water, air);
 - ``global``: one value per channel for the whole scene;
 - ``view``: a small MLP of the encoded view direction (spherical harmonics, degree 3), as the
-  paper's medium network; it starts equal to the global values (zero last layer).
+  paper's medium network; it starts equal to the global values (zero last layer);
+- ``veiling``: global attenuation and backscatter, the veiling light ``c_med`` by direction (the
+  same MLP's colour outputs): open water is brighter towards the surface and the sun, while
+  attenuation and backscatter are properties of the water that do not depend on where one
+  looks.
 
 The mode lives in a buffer, so a state dict carries it and it can change during training
 (``medium.mode=auto``). Shapes: directions (R, 3) -> each parameter (R, 3).
@@ -22,7 +26,8 @@ from torch import Tensor, nn
 
 from seathru.nerf.fields import spherical_harmonics
 
-MEDIUM_MODES = ("off", "global", "view")
+MEDIUM_MODES = ("off", "global", "view", "veiling")  # appended: stored indices stay valid
+DIRECTIONAL_MODES = ("view", "veiling")
 
 
 def inverse_softplus(y: float) -> float:
@@ -57,21 +62,25 @@ class Medium(nn.Module):
         return MEDIUM_MODES[int(self.mode_index)]
 
     def set_mode(self, mode: str) -> None:
-        """Switch mode; entering ``view`` starts the direction MLP at the global values."""
+        """Switch mode; entering a directional mode starts the direction MLP at the global
+        values."""
         if mode not in MEDIUM_MODES:
             raise ValueError(f"medium mode must be one of {MEDIUM_MODES}, got {mode!r}")
-        if mode == "view" and self.mode != "view":
+        if mode in DIRECTIONAL_MODES and self.mode not in DIRECTIONAL_MODES:
             with torch.no_grad():
                 nn.init.zeros_(self.view_net[-1].weight)
                 nn.init.zeros_(self.view_net[-1].bias)
         self.mode_index.fill_(MEDIUM_MODES.index(mode))
 
     @torch.no_grad()
-    def set_global(self, sigma_attn, sigma_bs, c_med) -> None:
-        """Set the global water (per channel, normalised units; ``c_med`` below colour_max)."""
+    def set_global(self, sigma_attn, sigma_bs, c_med=None) -> None:
+        """Set the global water (per channel, normalised units; ``c_med`` below colour_max;
+        None keeps the veiling light)."""
         self.raw_attn.copy_(torch.tensor([inverse_softplus(float(v)) for v in sigma_attn]))
         self.raw_bs.copy_(torch.tensor([inverse_softplus(float(v)) for v in sigma_bs]))
-        self.raw_colour.copy_(torch.tensor([logit(float(v) / self.colour_max) for v in c_med]))
+        if c_med is not None:
+            self.raw_colour.copy_(torch.tensor([logit(float(v) / self.colour_max)
+                                                for v in c_med]))
 
     def global_parameters(self) -> list[nn.Parameter]:
         return [self.raw_attn, self.raw_bs, self.raw_colour]
@@ -90,6 +99,9 @@ class Medium(nn.Module):
         raw = raw.expand(rays, 9)
         if mode == "view":
             raw = raw + self.view_net(spherical_harmonics(dirs, 3))
+        elif mode == "veiling":
+            offset = self.view_net(spherical_harmonics(dirs, 3))[:, 6:9]
+            raw = torch.cat([raw[:, :6], raw[:, 6:9] + offset], dim=-1)
         attn = F.softplus(raw[:, 0:3])
         bs = F.softplus(raw[:, 3:6])
         colour = torch.sigmoid(raw[:, 6:9]) * self.colour_max

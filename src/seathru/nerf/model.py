@@ -31,7 +31,7 @@ from torch.profiler import record_function
 
 from seathru.nerf.config import TrainConfig
 from seathru.nerf.fields import GridField, MLPField, SceneBox
-from seathru.nerf.medium import Medium
+from seathru.nerf.medium import DIRECTIONAL_MODES, Medium
 from seathru.nerf.rays import ray_box_intersect
 from seathru.nerf.rendering import RayRender, render_seathru
 from seathru.nerf.sampler import (candidate_edges, lookup_nearest, merge_edges,
@@ -49,8 +49,14 @@ class ModelOutput:
     coarse: RayRender | None = None  # hierarchical sampler: the coarse pass
 
 
-def initial_medium_mode(config: TrainConfig) -> str:
-    return "global" if config.medium.mode == "auto" else config.medium.mode
+def initial_medium_mode(config: TrainConfig, scene: dict | None = None) -> str:
+    """The medium a run starts with: ``auto`` starts ``veiling`` where the training images'
+    open water changes colour with view direction (``scene["open_water_direction_spread"]``
+    above ``medium.auto_veiling_spread``), else ``global``."""
+    if config.medium.mode != "auto":
+        return config.medium.mode
+    spread = float((scene or {}).get("open_water_direction_spread", 0.0))
+    return "veiling" if spread > config.medium.auto_veiling_spread else "global"
 
 
 def _replace_parameter(root: nn.Module, name: str, value: Tensor) -> nn.Parameter:
@@ -89,7 +95,7 @@ class SeaThruModel(nn.Module):
         c_med = scene.get("c_med_init", [0.1, 0.2, 0.3])
         if config.field.kind == "grid":
             self.field.decoder.init_colour(c_med)
-        self.medium = Medium(initial_medium_mode(config), sigma_init, c_med, config.field.colour_max)
+        self.medium = Medium(initial_medium_mode(config, scene), sigma_init, c_med, config.field.colour_max)
         self.register_buffer("stage", torch.tensor(0))
         self._occupancy: Tensor | None = None
         self.uniform_mix = config.sampler.uniform_mix  # the trainer anneals it
@@ -264,14 +270,14 @@ class SeaThruModel(nn.Module):
         mode = self.medium.mode
         if directions is None:
             directions = _fibonacci_sphere(512, self.medium.raw_attn.device)
-        if mode != "view":
+        if mode not in DIRECTIONAL_MODES:
             directions = directions[:1]
         directions = directions.to(self.medium.raw_attn.device)
         attn, bs, colour = self.medium(directions)
         values = {"sigma_attn": attn, "sigma_bs": bs, "c_med": colour}
         result: dict[str, Any] = {"mode": mode}
         result.update({k: [float(x) for x in v.mean(0)] for k, v in values.items()})
-        if mode == "view":
+        if mode in DIRECTIONAL_MODES:
             result["min"] = {k: [float(x) for x in v.amin(0)] for k, v in values.items()}
             result["max"] = {k: [float(x) for x in v.amax(0)] for k, v in values.items()}
         return result

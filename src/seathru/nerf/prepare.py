@@ -15,6 +15,7 @@ from seathru.nerf.config import TrainConfig, resolve_batch_rays
 from seathru.nerf.model import SeaThruModel, scene_from_frames
 from seathru.nerf.rays import RayBatch, RayDataset
 from seathru.radiometry.linearise import block_average
+from seathru.radiometry.open_water import open_water_mask
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +53,10 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
     """
     device = torch.device(device)
     config = resolve_batch_rays(config, device.type)
-    data = RayDataset(train_frames, images, masks, device=device)
+    water_masks = [open_water_mask(image, valid=masks[i] if masks is not None and i < len(masks)
+                                   else None) for i, image in enumerate(images)]
+    data = RayDataset(train_frames, images, masks, device=device,
+                      open_water=water_masks if config.loss.open_water_weight > 0 else None)
     if len(data) == 0:
         raise PipelineError("the training images have no valid pixel (check the masks)")
     if data.dropped_nonfinite:
@@ -73,6 +77,10 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
     scene = scene_from_frames(train_frames, cameras.near, cameras.far, cameras.centre,
                               cameras.scale, veiling if veiling is not None
                               else rgb.mean(0).tolist())
+    scene["open_water_image_share"] = open_water_share(water_masks, masks)
+    scene["open_water_direction_spread"] = open_water_direction_spread(
+        train_frames, images, water_masks) \
+        if scene["open_water_image_share"] > config.medium.auto_open_water_share else 0.0
     if config.passes > 0:
         config = dataclasses.replace(config, steps=steps_for_passes(
             config.passes, len(data), config.batch_rays))
@@ -132,6 +140,57 @@ def veiling_light_estimate(images, masks=None, block: int = 4, share: float = 0.
     if float(spread.max()) > max_spread:
         return None
     return [float(v) for v in median]
+
+
+def open_water_share(water_masks, masks=None) -> float:
+    """The share of the valid training pixels that show open water (``water_masks`` from
+    :func:`seathru.radiometry.open_water.open_water_mask`): evidence of water for the medium
+    decision that does not depend on the half-trained model."""
+    water = total = 0
+    for index, mask in enumerate(water_masks):
+        valid = masks[index] if masks is not None and index < len(masks) else None
+        water += int(mask.sum())
+        total += int(valid.sum()) if valid is not None else mask.size
+    return water / total if total else 0.0
+
+
+def open_water_direction_spread(frames, images, water_masks, max_pixels: int = 200_000,
+                                seed: int = 0) -> float:
+    """How much the open water's colour changes with view direction: the standard deviation of
+    a per-channel linear fit of colour on the ray direction over the open-water pixels,
+    relative to their mean colour (the largest channel). Uniform water gives the noise level
+    (about 0); real open water is brighter towards the surface (0.28 on d3_reef; 0.05 on the survey
+    demo, whose simulated water is uniform but whose open water borders hazy seabed).
+
+    Args:
+        frames: the training frames; images: their linear images (H, W, 3); water_masks:
+            (H, W) bool open-water masks.
+        max_pixels: at most this many pixels, drawn at random, enter the fit.
+
+    Returns:
+        the relative spread (0 when there is no open water).
+    """
+    from seathru.nerf.rays import frame_rays
+
+    directions, colours = [], []
+    for frame, image, mask in zip(frames, images, water_masks):
+        if mask is None or not mask.any():
+            continue
+        _, dirs = frame_rays(frame)
+        flat = np.asarray(mask, bool).reshape(-1)
+        directions.append(dirs.numpy().reshape(-1, 3)[flat])
+        colours.append(np.asarray(image, np.float64)[..., :3].reshape(-1, 3)[flat])
+    if not directions:
+        return 0.0
+    dirs, rgb = np.concatenate(directions), np.concatenate(colours)
+    if len(dirs) > max_pixels:
+        pick = np.random.default_rng(seed).choice(len(dirs), max_pixels, replace=False)
+        dirs, rgb = dirs[pick], rgb[pick]
+    design = np.concatenate([np.ones((len(dirs), 1)), dirs], axis=1)
+    coefficients, *_ = np.linalg.lstsq(design, rgb, rcond=None)
+    predicted = design @ coefficients
+    mean = np.maximum(rgb.mean(0), 1e-6)
+    return float((predicted.std(0) / mean).max())
 
 
 def seed_everything(seed: int) -> None:

@@ -140,31 +140,36 @@ class RayBatch:
     near: Tensor       # (R,)
     far: Tensor        # (R,)
     rgb: Tensor        # (R, 3) linear target colour
+    open_water: Tensor | None = None  # (R,) bool: the pixel shows open water (no surface)
 
     def __len__(self) -> int:
         return self.origins.shape[0]
 
     def to(self, device) -> "RayBatch":
         return RayBatch(*(getattr(self, k).to(device) for k in
-                          ("origins", "directions", "near", "far", "rgb")))
+                          ("origins", "directions", "near", "far", "rgb")),
+                        None if self.open_water is None else self.open_water.to(device))
 
     def subset(self, index: Tensor) -> "RayBatch":
         return RayBatch(self.origins[index], self.directions[index], self.near[index],
-                        self.far[index], self.rgb[index])
+                        self.far[index], self.rgb[index],
+                        None if self.open_water is None else self.open_water[index])
 
 
 class RayDataset:
     """All valid pixels of a set of frames as one tensor of rays (fits in memory at these sizes).
 
     ``images``: one (H, W, 3) float array per frame; ``masks``: (H, W) bool or None per frame.
-    Pixels outside the mask or with a non-finite value are left out.
+    Pixels outside the mask or with a non-finite value are left out. ``open_water``: (H, W)
+    bool per frame (``seathru.radiometry.open_water``), kept per ray, or None.
     """
 
-    def __init__(self, frames, images, masks=None, device="cpu"):
-        origins, dirs, near, far, rgb = [], [], [], [], []
+    def __init__(self, frames, images, masks=None, device="cpu", open_water=None):
+        origins, dirs, near, far, rgb, water = [], [], [], [], [], []
         masks = masks if masks is not None else [None] * len(frames)
+        water_masks = open_water if open_water is not None else [None] * len(frames)
         self.dropped_nonfinite = 0
-        for frame, image, mask in zip(frames, images, masks):
+        for frame, image, mask, water_mask in zip(frames, images, masks, water_masks):
             image = np.asarray(image, dtype=np.float32)
             if image.shape[:2] != (frame.height, frame.width):
                 raise ValueError(f"frame {frame.name}: image is {image.shape[1]}x{image.shape[0]}"
@@ -181,8 +186,12 @@ class RayDataset:
             near.append(torch.full((n,), float(frame.near)))
             far.append(torch.full((n,), float(frame.far)))
             rgb.append(torch.from_numpy(image.reshape(-1, 3))[keep_t])
+            if open_water is not None:
+                flags = np.zeros(keep.shape, bool) if water_mask is None else water_mask
+                water.append(torch.from_numpy(np.asarray(flags, bool).reshape(-1))[keep_t])
         self.rays = RayBatch(torch.cat(origins), torch.cat(dirs), torch.cat(near),
-                             torch.cat(far), torch.cat(rgb)).to(device)
+                             torch.cat(far), torch.cat(rgb),
+                             torch.cat(water) if open_water is not None else None).to(device)
 
     def __len__(self) -> int:
         return len(self.rays)

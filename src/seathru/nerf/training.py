@@ -286,21 +286,24 @@ class Trainer:
         self.model.refresh_occupancy()
 
     def select_medium(self) -> dict:
-        """``medium.mode=auto``: no water (plain NeRF) or one global medium, the simplest that the
-        training views support.
+        """``medium.mode=auto``: no water (plain NeRF) or the water the run started with, the
+        simplest that the training views support.
 
-        The global medium has been trained so far. If what it adds to the images is negligible
-        (backscatter below ``auto_backscatter_share`` of the image and attenuation over the
-        median scene depth below ``auto_attenuation``) the water is switched off at once.
-        Otherwise both models train on from here for the same few steps on the same batches
-        (``auto_trial_share`` of the run each) and are compared on held-out training rays.
-        The images' own evidence of water decides ties: open water in view (rays that meet no
-        surface, ``auto_open_water_share``), a density wall at the far bound standing in for
-        it, or attenuation the surfaces seen over a range of distances determine
-        (``assess_water``). With such evidence the water stays unless no water is better by
-        ``auto_margin_db``; without it, the water must be better by that margin. View-dependent
-        water is never picked automatically: a direction-dependent medium can also absorb
-        errors of a half-trained scene; ask for it with ``medium.mode=view``.
+        The water has been trained so far: ``global``, or ``veiling`` (veiling light by view
+        direction) where the open water of the training images changes colour with direction
+        (``seathru.nerf.model.initial_medium_mode``). If what it adds to the images is
+        negligible (backscatter below ``auto_backscatter_share`` of the image and attenuation
+        over the median scene depth below ``auto_attenuation``) the water is switched off at
+        once. Otherwise both models train on from here for the same few steps on the same
+        batches (``auto_trial_share`` of the run each) and are compared on held-out training
+        rays. The images' own evidence of water decides ties: open water in the photographs
+        (smooth regions reaching the top of the frame, ``seathru.radiometry.open_water``) or in
+        the model (rays that meet no surface; both above ``auto_open_water_share``), a density
+        wall at the far bound standing in for it, or attenuation the surfaces seen over a range
+        of distances determine (``assess_water``). With such evidence the water stays unless no
+        water is better by ``auto_margin_db``; without it, the water must be better by that
+        margin. The paper's fully view-dependent water is never picked automatically: it can
+        also absorb errors of a half-trained scene; ask for it with ``medium.mode=view``.
         """
         c = self.config
         rendered = self.render_batch(self.probe)
@@ -326,7 +329,11 @@ class Trainer:
         determined = all(assessment.get("determined", {}).get("sigma_attn", [False]))
         surface_attenuation = 1.0 - math.exp(-max(assessment.get("surface_fit", {}).get(
             "sigma_attn", [0.0])) * depth)
+        image_water = float(self.model.scene.get("open_water_image_share", 0.0))
         evidence = [text for present, text in (
+            (image_water > c.medium.auto_open_water_share,
+             f"{100 * image_water:.1f}% of the training pixels are open water (smooth regions "
+             "reaching the top of the frame)"),
             (open_water > c.medium.auto_open_water_share,
              f"{100 * open_water:.1f}% of the rays meet no surface and show the veiling light "
              "(open water)"),
@@ -337,7 +344,8 @@ class Trainer:
              f"over the median depth (attenuation determined)")) if present]
         stats = {"backscatter_share": backscatter_share, "attenuation_over_depth": attenuation,
                  "scene_depth_median": depth, "object_hit_share": float(hit.float().mean()),
-                 "open_water_share": open_water, "far_wall_share": wall,
+                 "open_water_share": open_water, "open_water_image_share": image_water,
+                 "far_wall_share": wall,
                  "surface_attenuation_over_depth": surface_attenuation,
                  "attenuation_determined": determined, "evidence_of_water": evidence,
                  "fitted_global": water, "validation_rays": len(self.probe)}
@@ -346,6 +354,7 @@ class Trainer:
                       "open_water_share": c.medium.auto_open_water_share,
                       "margin_db": c.medium.auto_margin_db}
         decided_at = {"decided_at_step": self.step, "decided_at_progress": self._progress()}
+        water_mode = self.model.medium.mode   # global, or veiling where the open water asks
         if not evidence and backscatter_share < c.medium.auto_backscatter_share \
                 and attenuation < c.medium.auto_attenuation:
             chosen = "off"
@@ -361,7 +370,7 @@ class Trainer:
             trial = int(min(500, max(10, c.medium.auto_trial_share * horizon)))
             start = self._state()
             results, ends = {}, {}
-            for mode in ("off", "global"):
+            for mode in ("off", water_mode):
                 if mode != "off":
                     ends["off"] = self._state()
                     self._restore(start)
@@ -372,36 +381,37 @@ class Trainer:
                     if self._optimise_once() is not None:
                         self.step += 1
                 results[mode] = self._probe_psnr()
-            gain = results["global"] - results["off"]
+            gain = results[water_mode] - results["off"]
             margin = c.medium.auto_margin_db
-            chosen = "global" if (gain > -margin if evidence else gain > margin) else "off"
+            chosen = water_mode if (gain > -margin if evidence else gain > margin) else "off"
             if chosen == "off":
                 self._restore(ends["off"])
                 self.model.medium.set_mode("off")
             stats.update({"trial_steps": trial, "validation_psnr_off": results["off"],
-                          "validation_psnr_global": results["global"]})
+                          "validation_psnr_water": results[water_mode],
+                          f"validation_psnr_{water_mode}": results[water_mode]})
             if evidence:
                 verdict = (f"kept: the images show water ({'; '.join(evidence)}) and no water "
                            f"is not better by more than {margin:g} dB ({gain:+.2f} dB for the "
-                           "water)" if chosen == "global" else
+                           "water)" if chosen != "off" else
                            f"dropped despite signs of water ({'; '.join(evidence)}): no water "
                            f"is better by {-gain:.2f} dB > {margin:g} dB")
             else:
-                verdict = (f"better by {gain:.2f} dB > {margin:g} dB: one global medium"
-                           if chosen == "global" else
+                verdict = (f"better by {gain:.2f} dB > {margin:g} dB: one {water_mode} medium"
+                           if chosen != "off" else
                            f"not better by more than {margin:g} dB ({gain:+.2f} dB) and the "
                            "images show no open water, far wall or fading with range: no "
                            "water, plain NeRF")
             reason = (f"trained {trial} steps with and without water from step "
                       f"{start['step']}: on {len(self.probe)} held-out training rays the water "
-                      f"model reaches {results['global']:.2f} dB, no water "
+                      f"model ({water_mode}) reaches {results[water_mode]:.2f} dB, no water "
                       f"{results['off']:.2f} dB; the water is {verdict} (it made up "
                       f"{100 * backscatter_share:.1f}% of the image as backscatter, attenuation "
                       f"{100 * attenuation:.1f}% over the median depth {depth:.3g})")
         self.model.medium.to(self.device)
         self._take_snapshot()
         return {"requested": "auto", "chosen": chosen, "reason": reason,
-                "candidates": ["off", "global"], **decided_at,
+                "candidates": ["off", water_mode], **decided_at,
                 "statistics": stats, "thresholds": thresholds}
 
     # -------------------------------------------------------------------- loop
@@ -429,7 +439,7 @@ class Trainer:
         """
         model = self.model
         record = {"step": self.step, "progress": round(self._progress(), 4)}
-        if model.medium.mode != "global":
+        if model.medium.mode not in ("global", "veiling"):
             return {**record, "skipped": f"medium mode is {model.medium.mode}"}
         started = time.perf_counter()
         data = self._surface_data(self.config.seed + 5 + len(self.water_refits))
@@ -444,7 +454,10 @@ class Trainer:
                                     self.config.medium.refit_max_relative)
         after = {k: [f if ok else b for f, b, ok in zip(getattr(fit, k), before[k],
                                                         accepted[k])] for k in WATER_KEYS}
-        model.medium.set_global(after["sigma_attn"], after["sigma_bs"], after["c_med"])
+        if model.medium.mode == "veiling":   # one c_med does not describe it: keep it
+            after["c_med"] = before["c_med"]
+        model.medium.set_global(after["sigma_attn"], after["sigma_bs"],
+                                after["c_med"] if model.medium.mode == "global" else None)
         for param in model.medium.global_parameters():
             self.optimizer.state.pop(param, None)
         record.update({"pixels": fit.pixels, "groups": fit.groups, "seconds":
@@ -465,9 +478,10 @@ class Trainer:
     def assess_water(self) -> dict | None:
         """How well the images determine the trained water: a fit on the final geometry's
         surfaces and its Laplace half-widths (``water_fit.laplace_halfwidths``), normalised
-        units. None when the medium is not global or there are too few surface pixels."""
+        units. None when the medium is neither global nor veiling (whose c_med is the mean
+        over directions) or there are too few surface pixels."""
         model = self.model
-        if model.medium.mode != "global":
+        if model.medium.mode not in ("global", "veiling"):
             return None
         data = self._surface_data(self.config.seed + 97)
         if isinstance(data, str):
@@ -505,6 +519,10 @@ class Trainer:
         if c.loss.transmittance_prior_weight > 0 and ramp > 0:
             loss = loss + ramp * c.loss.transmittance_prior_weight * transmittance_prior(
                 render.transmittance[:, -1])
+        if c.loss.open_water_weight > 0 and batch.open_water is not None \
+                and self.model.medium.mode != "off" and bool(batch.open_water.any()):
+            opacity = 1.0 - render.transmittance[:, -1]
+            loss = loss + c.loss.open_water_weight * opacity[batch.open_water].mean()
         if c.loss.distortion_weight > 0 and out.s_edges is not None:
             loss = loss + c.loss.distortion_weight * distortion_loss(render.weights, out.s_edges)
         if c.loss.density_tv_weight > 0 and c.field.kind == "grid":
