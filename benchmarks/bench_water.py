@@ -8,6 +8,10 @@ model's own surfaces with open-water rays and the dark-pixel bound: ``train.medi
 without them (``refit_at=[]``, ``veiling_light_init=false``). Per parameter and channel: the fitted value, its 95% interval, the truth;
 whether the interval holds the truth; whether a parameter outside 5% was flagged as not
 determined; restored-vs-clean PSNR (linear) on the held-out views, beside the full render's.
+Beside water.json's intervals, the robust ones (``water_fit.robust_halfwidths``) recomputed on
+the final model's surfaces as the train step's assessment builds them
+(``bench_water_intervals.assess_model``), around the trained value widened by its distance to
+that surface fit.
 
     python benchmarks/bench_water.py [--views 16 --width 160 --height 120] [--minutes 1.0]
         [--waters default,turbid,...] [--paths orbit,transect,survey] [--jobs 2]
@@ -88,6 +92,9 @@ def measure(sim: Path, out: Path) -> dict:
         clean.append(read_image(sim / "truth" / "clean" / f"{frame.name}.tiff"))
     clean_stack = np.stack(clean)
     selection = json.loads((out / "selection.json").read_text())
+    from bench_water_intervals import assess_model
+
+    robust = assess_model(sim, out)
     params = []
     for key in KEYS:
         for channel in range(3):
@@ -99,10 +106,25 @@ def measure(sim: Path, out: Path) -> dict:
                 "interval": [lo, hi],
                 "contains_truth": None if lo is None else bool(lo <= t <= (hi if hi is not None
                                                                            else np.inf)),
-                "determined": None if determined is None else determined[key][channel]})
+                "determined": None if determined is None else determined[key][channel],
+                **_robust(robust, key, channel, report.scale, t)})
     return {"medium": selection.get("final_mode"), "params": params,
             "restored_psnr": psnr(np.stack(restored), clean_stack),
             "full_psnr": psnr(np.stack(full), clean_stack)}
+
+
+def _robust(record: dict, key: str, channel: int, scale: float, truth: float) -> dict:
+    """The robust interval of one parameter, per source unit, around the trained value."""
+    if "skipped" in record:
+        return {"robust_interval": None, "robust_contains_truth": None,
+                "robust_determined": None}
+    factor = scale if key != "c_med" else 1.0
+    trained, fit = record["trained"][key][channel], record["surface_fit"][key][channel]
+    half = record["robust"][key][channel] + abs(trained - fit)
+    low, high = max(0.0, (trained - half) * factor), (trained + half) * factor
+    return {"robust_interval": [low, high if np.isfinite(high) else None],
+            "robust_contains_truth": bool(low <= truth <= high),
+            "robust_determined": record["robust_determined"][key][channel]}
 
 
 def main() -> None:
@@ -150,11 +172,19 @@ def _summary(rows: list[dict], variant: str) -> str:
     covered = [p["contains_truth"] for p in params if p["contains_truth"] is not None]
     off = [p for p in within if p["relative_error"] > 0.05 and p["determined"] is not None]
     flagged = sum(not p["determined"] for p in off)
+    robust = [p.get("robust_contains_truth") for p in params
+              if p.get("robust_contains_truth") is not None]
+    robust_off = [p for p in within if p["relative_error"] > 0.05
+                  and p.get("robust_determined") is not None]
+    robust_flagged = sum(not p["robust_determined"] for p in robust_off)
     restored = [r["restored_psnr"] for r in rows if r["variant"] == variant]
     return (f"**{variant}**: {close}/{len(within)} parameters within 5% of the truth; "
-            f"intervals hold the truth in {sum(covered)}/{len(covered)} fits"
-            f" ({100 * sum(covered) / max(1, len(covered)):.0f}%); of the parameters more than "
-            f"5% off, {flagged}/{len(off)} are flagged as not determined; restored vs clean "
+            f"water.json's intervals hold the truth in {sum(covered)}/{len(covered)} fits"
+            f" ({100 * sum(covered) / max(1, len(covered)):.0f}%), the robust ones in "
+            f"{sum(robust)}/{len(robust)} ({100 * sum(robust) / max(1, len(robust)):.0f}%); of "
+            f"the parameters more than 5% off, {flagged}/{len(off)} are flagged as not "
+            f"determined by water.json, {robust_flagged}/{len(robust_off)} by the robust "
+            f"intervals; restored vs clean "
             f"{np.median(restored):.1f} dB median ({min(restored):.1f}-{max(restored):.1f}).")
 
 
@@ -163,12 +193,15 @@ def write_results(rows: list[dict], args, seconds: float) -> None:
              f"Dives of {args.views} views at {args.width}x{args.height}, trained on their true "
              f"cameras for {args.minutes:g} min each (1 CPU thread each, {args.jobs} run(s) at a time); "
              "errors per channel (R, G, B); interval: 95% from water.json's uncertainty; "
-             "`?` = flagged as not determined by the views.", ""]
+             "`?` = flagged as not determined by the views (water.json); robust: "
+             "`water_fit.robust_halfwidths` recomputed on the final model's surfaces, around "
+             "the trained value widened by its distance to that fit.", ""]
     for variant in dict.fromkeys(r["variant"] for r in rows):
         lines.append("- " + _summary(rows, variant))
     lines += ["", "| path | water | variant | medium | sigma_attn error | sigma_bs error | "
-              "c_med error | truth in interval | restored / full vs clean (dB) |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              "c_med error | truth in interval | truth in robust interval | "
+              "restored / full vs clean (dB) |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         cells = []
         for key in KEYS:
@@ -177,8 +210,11 @@ def write_results(rows: list[dict], args, seconds: float) -> None:
                 ("n/a" if p["relative_error"] is None else f"{100 * p['relative_error']:.0f}%")
                 + ("?" if p["determined"] is False else "") for p in ps))
         covered = [p["contains_truth"] for p in r["params"] if p["contains_truth"] is not None]
+        robust = [p.get("robust_contains_truth") for p in r["params"]
+                  if p.get("robust_contains_truth") is not None]
         lines.append(f"| {r['path']} | {r['water']} | {r['variant']} | {r['medium']} | "
                      + " | ".join(cells) + f" | {sum(covered)}/{len(covered)} | "
+                     f"{sum(robust)}/{len(robust)} | "
                      f"{r['restored_psnr']:.1f} / {r['full_psnr']:.1f} |")
     lines += ["", f"Machine: {cpu_name()}; load {load_average()}; {time.strftime('%Y-%m-%d')}; "
               f"{seconds / 60:.0f} min in all.", ""]

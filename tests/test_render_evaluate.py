@@ -275,6 +275,8 @@ def test_evaluate_by_default_runs_only_our_metrics_and_says_why_no_chart(evaluat
     # a hand-made camera file without an ingest output: no stored images to find a chart in
     assert summary["colour_chart"]["source"] == "none"
     assert "manifest.json" in summary["colour_chart"]["reason"]
+    # no COLMAP model next to the camera file: no colour slope along tracks
+    assert summary["track_colour_slope"] is None
 
 
 def test_evaluate_reports_missing_renders(tmp_path, fake, capsys):

@@ -122,6 +122,7 @@ class EvaluationSummary:
     truth: TruthSummary | None = None
     protocol: dict | None = None        # NerfBaselines' protocol: means, views, folder
     colour_chart: dict | None = None    # seathru.io.chart's measurement, or why there is none
+    track_colour_slope: dict | None = None  # seathru.io.tracks: colour vs range along tracks
 
 
 def lpips_network(state: Mapping | None, source: str | os.PathLike | None):
@@ -208,7 +209,8 @@ def build_summary(dataset: str, table: pd.DataFrame, *, lpips_status: str,
                   render_stats: dict | None = None, train_log: pd.DataFrame | None = None,
                   water: dict | None = None, selection: dict | None = None,
                   truth: TruthSummary | None = None, protocol: dict | None = None,
-                  colour_chart: dict | None = None) -> EvaluationSummary:
+                  colour_chart: dict | None = None,
+                  track_colour_slope: dict | None = None) -> EvaluationSummary:
     """One dataset's summary from its metrics table and the other steps' records.
 
     Args:
@@ -218,9 +220,10 @@ def build_summary(dataset: str, table: pd.DataFrame, *, lpips_status: str,
         train_log: the train step's ``train_log.csv``.
         protocol: ``seathru.io.nerfbaselines.evaluate_nerfbaselines``'s summary part.
         colour_chart: ``seathru.io.chart.evaluate_colour_chart``'s result.
+        track_colour_slope: ``seathru.io.tracks.track_colour_slope``'s result.
     """
     return EvaluationSummary(dataset=dataset, views=len(table), means=view_means(table),
                              lpips=lpips_status, render=render_speed(render_stats),
                              training=training_summary(train_log), water_fitted=water,
                              medium_selection=selection, truth=truth, protocol=protocol,
-                             colour_chart=colour_chart)
+                             colour_chart=colour_chart, track_colour_slope=track_colour_slope)

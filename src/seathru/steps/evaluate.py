@@ -12,14 +12,16 @@ predictions taken back to the stored images' encoding and compared with the stor
 they are on disk, uint8-truncated, written in NerfBaselines' layout to ``--out/nerfbaselines``
 (``seathru.io.nerfbaselines``). A colour chart (``--chart`` annotation, ``colour_chart.json`` in
 the dataset folder, else OpenCV's mcc detector) is measured on the photo, the ingest image and
-the restored render: CIEDE2000 and grey angular error (``seathru.io.chart``). With ``--truth``
+the restored render: CIEDE2000 and grey angular error (``seathru.io.chart``). With the poses
+step's COLMAP model: how colour changes with range along its tracks, in the input and in the
+restored colour (``track_colour_slope``, ``seathru.io.tracks``). With ``--truth``
 (a simulated dataset's ``simulate/truth``): restored renders against the clean truth, depth and
 water (``seathru.io.evaluation.truth_evaluation``).
 
 Writes ``metrics.csv`` (one row per held-out view), ``summary.json`` (means, render speed,
 training time, fitted water, the medium selection, protocol and chart results) and
-``frontier.csv`` (quality against training time from the train step's snapshots, scored against
-the truth when there is one: ``seathru.io.frontier``) to ``--out``.
+``frontier.csv`` (quality against training time from the train step's snapshots, scored
+against the truth when there is one: ``seathru.io.frontier``) to ``--out``.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from seathru.io.images import read_image
 from seathru.io.jsonfile import json_safe, read_json
 from seathru.io.nerfbaselines import evaluate_nerfbaselines
 from seathru.io.stored_views import ingest_folder_of
+from seathru.io.tracks import track_colour_slope
 from seathru.io.water import read_water
 from seathru.settings import setting
 
@@ -132,7 +135,8 @@ def run(args: argparse.Namespace) -> None:
         render_stats=read_json(args.renders / "render_stats.json", missing_ok=True),
         train_log=train_log, water=None if water is None else water.to_dict(),
         selection=read_json(args.train_dir / "selection.json", missing_ok=True), truth=truth,
-        protocol=protocol, colour_chart=chart)
+        protocol=protocol, colour_chart=chart,
+        track_colour_slope=track_colour_slope(cameras, args.train_dir / "model.pt", args.threads))
     args.out.mkdir(parents=True, exist_ok=True)
     write_metrics(args.out / "metrics.csv", table)
     write_summary(args.out / "summary.json", summary)

@@ -1,0 +1,245 @@
+"""Do the water fit's 95% intervals hold the truth? Curvature against robust, side by side.
+
+The water fitted to surfaces seen at several ranges (``seathru.nerf.water_fit``) comes with
+95% half-widths, either from the curvature of the profile loss (``laplace_halfwidths``) or
+cluster-robust with a between-part systematic term (``robust_halfwidths``). Two checks:
+
+1. Synthetic surfaces with a known water (cheap, a minute): independent pixel noise, and the
+   errors a NeRF's geometry makes -- each surface's depth off by 5% (one error per voxel),
+   each surface's colour off (texture), far surfaces placed up to 10% short, floaters (5% of
+   pixels at 20-70% of their range). Each over ``--seeds`` draws.
+2. ``--work DIR`` (a ``bench_water.py`` work folder with trained models): every model's own
+   surfaces, rebuilt as the train step's final water assessment builds them (its training
+   rays, median depth, opacity, voxels, open water and dark-pixel bound), fitted, and the
+   intervals checked against the simulator's truth: centred on that fit, and centred on the
+   trained value widened by its distance to the fit (what ``water.json`` reports).
+
+    python benchmarks/bench_water_intervals.py [--seeds 40] [--work /tmp/bench_water]
+
+Writes benchmarks/results/water_intervals.md (and .json with every number).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from machine import cpu_name, load_average
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "src"))
+RESULTS = REPO / "benchmarks" / "results" / "water_intervals.md"
+KEYS = ("sigma_attn", "sigma_bs", "c_med")
+TRUE = {"sigma_attn": [0.55, 0.25, 0.20], "sigma_bs": [0.45, 0.30, 0.25],
+        "c_med": [0.08, 0.20, 0.30]}
+SCENARIOS = {
+    "independent noise": {},
+    "independent noise + open water": {"water": 300},
+    "depth off 5% per surface": {"depth_sd": 0.05},
+    "colour off per surface": {"colour_sd": 0.03, "noise": 0.003},
+    "floaters (5% of pixels)": {"floaters": 0.05},
+    "far surfaces up to 10% short": {"far_bias": 0.10},
+}
+
+
+def synthetic(rng: np.random.Generator, groups: int = 150, per_group: int = 8,
+              noise: float = 0.01, depth_sd: float = 0.0, colour_sd: float = 0.0,
+              far_bias: float = 0.0, floaters: float = 0.0, water: int = 0):
+    """Surfaces at 0.5-8 m under TRUE water, and the ranges a model with the given errors
+    would give them: (ranges, observed, ids, groups) as float64 / long tensors."""
+    clean = rng.uniform(0.05, 0.9, (groups, 3))
+    ids = np.repeat(np.arange(groups), per_group)
+    z = rng.uniform(0.5, 8.0, ids.size)
+    attn, bs, c_med = (np.array(TRUE[k]) for k in KEYS)
+    observed = clean[ids] * np.exp(-attn * z[:, None]) + c_med * (1 - np.exp(-bs * z[:, None]))
+    observed += noise * rng.standard_normal(observed.shape)
+    observed += colour_sd * rng.standard_normal((groups, 3))[ids] * np.exp(-attn * z[:, None])
+    model_z = z * (1 + depth_sd * rng.standard_normal(groups))[ids]
+    model_z = model_z * (1 - far_bias * np.clip((model_z - 4.0) / 4.0, 0.0, None))
+    floater = rng.random(ids.size) < floaters
+    model_z[floater] *= rng.uniform(0.2, 0.7, int(floater.sum()))
+    if water:
+        model_z = np.concatenate([model_z, np.full(water, np.inf)])
+        ids = np.concatenate([ids, np.full(water, groups)])
+        observed = np.concatenate([observed, c_med + noise * rng.standard_normal((water, 3))])
+        groups += 1
+    return (torch.from_numpy(model_z), torch.from_numpy(observed), torch.from_numpy(ids),
+            groups)
+
+
+def covered(centre: dict, halfwidth: dict, truth: dict) -> list[bool]:
+    return [bool(abs(c - t) <= h) for k in KEYS
+            for c, h, t in zip(centre[k], halfwidth[k], truth[k])]
+
+
+def synthetic_check(seeds: int) -> list[dict]:
+    from seathru.nerf.water_fit import fit_water, laplace_halfwidths, robust_halfwidths
+
+    rows = []
+    for name, options in SCENARIOS.items():
+        counts = {"curvature": [], "robust": []}
+        determined, seconds = [], []
+        for seed in range(seeds):
+            data = synthetic(np.random.default_rng(seed), **options)
+            fit = fit_water(*data, {"sigma_attn": 0.3, "sigma_bs": 0.3, "c_med": 0.3})
+            centre = {k: getattr(fit, k) for k in KEYS}
+            started = time.perf_counter()
+            robust = robust_halfwidths(fit, *data)
+            seconds.append(time.perf_counter() - started)
+            counts["robust"] += covered(centre, robust.halfwidth, TRUE)
+            counts["curvature"] += covered(centre, laplace_halfwidths(fit, *data).halfwidth,
+                                           TRUE)
+            determined += [d for k in KEYS for d in robust.determined[k]]
+        rows.append({"scenario": name, "intervals": len(counts["robust"]),
+                     **{m: float(np.mean(v)) for m, v in counts.items()},
+                     "robust_determined": float(np.mean(determined)),
+                     "robust_seconds": float(np.median(seconds))})
+        print(rows[-1], flush=True)
+    return rows
+
+
+def model_surfaces(sim: Path, train: Path):
+    """The surface data of a trained model as its final water assessment builds it (all
+    training rays, not less the medium-selection hold-out), its model and the truth (in
+    normalised units). Returns (data or reason, model, truth, trained water, scale)."""
+    from seathru.io.cameras import read_cameras
+    from seathru.io.model import load_model
+    from seathru.io.training import read_frame_images
+    from seathru.io.water import read_truth_water, read_water
+    from seathru.nerf.rays import RayDataset
+    from seathru.nerf.water_fit import surface_data
+
+    model = load_model(train / "model.pt")
+    config = model.config
+    cameras = read_cameras(sim / "truth" / "cameras.json")
+    frames = cameras.split("train")
+    rays = RayDataset(frames, *read_frame_images(cameras, frames)).fixed_subset(
+        config.medium.refit_rays, config.seed + 97)
+    depth, opacity = [], []
+    with torch.no_grad():
+        for start in range(0, len(rays), 8192):
+            part = rays.subset(slice(start, start + 8192))
+            render = model(part.origins, part.directions, part.near, part.far).render
+            depth.append(render.depth_median)
+            opacity.append(render.opacity)
+    diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
+    data = surface_data(rays.origins, rays.directions, rays.rgb, torch.cat(depth),
+                        torch.cat(opacity), config.medium.refit_voxel * diagonal,
+                        config.medium.refit_opacity,
+                        open_water_opacity=config.medium.open_water_opacity)
+    report = read_water(train / "water.json")
+    truth = read_truth_water(sim / "truth" / "water.json").scaled(1 / report.scale).as_dict()
+    return data, model, truth, report.normalised.as_dict(), report.scale
+
+
+def assess_model(sim: Path, train: Path) -> dict:
+    """Curvature and robust intervals of one trained model's surface fit against the truth
+    (normalised units)."""
+    from seathru.nerf.water_fit import fit_water, laplace_halfwidths, robust_halfwidths
+
+    data, model, truth, trained, scale = model_surfaces(sim, train)
+    record = {"model": f"{sim.name}/{train.name}", "scale": scale, "truth": truth,
+              "trained": trained}
+    if isinstance(data, str):
+        return {**record, "skipped": data}
+    config = model.config
+    dark = data.dark if config.medium.dark_pixel_bound else None
+    fit = fit_water(data.ranges, data.observed, data.ids, data.groups, trained,
+                    config.medium.refit_steps, model.medium.colour_max, dark)
+    centre = {k: getattr(fit, k) for k in KEYS}
+    started = time.perf_counter()
+    robust = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,
+                               colour_max=model.medium.colour_max, dark=dark)
+    seconds = time.perf_counter() - started
+    curvature = laplace_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups)
+    record.update({"pixels": fit.pixels, "groups": fit.groups, "surface_fit": centre,
+                   "robust_seconds": seconds, "robust": robust.halfwidth,
+                   "robust_determined": robust.determined, "curvature": curvature.halfwidth,
+                   "statistical": robust.statistical, "systematic": robust.systematic,
+                   "splits": robust.splits})
+    for method, half in (("curvature", curvature.halfwidth), ("robust", robust.halfwidth)):
+        record[f"{method}_covers"] = covered(centre, half, truth)
+        widened = {k: [h + abs(t - f) for h, t, f in zip(half[k], trained[k], centre[k])]
+                   for k in KEYS}
+        record[f"{method}_covers_trained"] = covered(trained, widened, truth)
+    return record
+
+
+def model_check(work: Path) -> list[dict]:
+    rows = []
+    for train in sorted(work.glob("*/train_*")):
+        if (train / "model.pt").exists() and (train.parent / "truth" / "water.json").exists():
+            rows.append(assess_model(train.parent, train))
+            row = rows[-1]
+            print(row["model"], row.get("skipped") or
+                  {m: sum(row[f"{m}_covers"]) for m in ("curvature", "robust")}, flush=True)
+    return rows
+
+
+def write_results(synthetic_rows: list[dict], model_rows: list[dict], args,
+                  seconds: float) -> None:
+    lines = ["# Water intervals: do they hold the truth? (`benchmarks/bench_water_intervals.py`)",
+             "", "Share of 95% intervals (9 per fit) that hold the true water; curvature = "
+             "`laplace_halfwidths`, robust = `robust_halfwidths` (cluster-robust sandwich + "
+             "between-part systematic term).", "",
+             f"## Synthetic surfaces ({args.seeds} seeds, 150 voxels x 8 pixels, 0.5-8 m)", "",
+             "| scenario | curvature | robust | robust: determined | robust: seconds |",
+             "|---|---|---|---|---|"]
+    for r in synthetic_rows:
+        lines.append(f"| {r['scenario']} | {100 * r['curvature']:.0f}% | "
+                     f"{100 * r['robust']:.0f}% | {100 * r['robust_determined']:.0f}% | "
+                     f"{r['robust_seconds']:.2f} |")
+    if model_rows:
+        done = [r for r in model_rows if "skipped" not in r]
+        lines += ["", f"## Trained models' own surfaces (`{args.work}`)", "",
+                  "| model | pixels / voxels | curvature | robust | robust, trained centre | "
+                  "robust: determined | seconds |", "|---|---|---|---|---|---|---|"]
+        for r in model_rows:
+            if "skipped" in r:
+                lines.append(f"| {r['model']} | skipped: {r['skipped']} | | | | | |")
+                continue
+            determined = sum(d for k in KEYS for d in r["robust_determined"][k])
+            lines.append(f"| {r['model']} | {r['pixels']} / {r['groups']} | "
+                         f"{sum(r['curvature_covers'])}/9 | {sum(r['robust_covers'])}/9 | "
+                         f"{sum(r['robust_covers_trained'])}/9 | {determined}/9 | "
+                         f"{r['robust_seconds']:.1f} |")
+        total = 9 * max(1, len(done))
+        share = {key: sum(sum(r[key]) for r in done) / total for key in
+                 ("curvature_covers", "robust_covers", "curvature_covers_trained",
+                  "robust_covers_trained")}
+        lines += ["", f"In all ({len(done)} fits): curvature {100 * share['curvature_covers']:.0f}%"
+                  f", robust {100 * share['robust_covers']:.0f}% around the surface fit; around "
+                  f"the trained value widened by its distance to the fit: curvature "
+                  f"{100 * share['curvature_covers_trained']:.0f}%, robust "
+                  f"{100 * share['robust_covers_trained']:.0f}%."]
+    lines += ["", f"Machine: {cpu_name()}, 1 torch thread; load {load_average()}; "
+              f"{time.strftime('%Y-%m-%d')}; {seconds / 60:.1f} min in all.", ""]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text("\n".join(lines))
+    args.out.with_suffix(".json").write_text(json.dumps(
+        {"synthetic": synthetic_rows, "models": model_rows}, indent=1))
+    print("\n".join(lines))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=40, help="draws per synthetic scenario")
+    parser.add_argument("--work", type=Path, default=None,
+                        help="a bench_water.py work folder with trained models")
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    started = time.time()
+    synthetic_rows = synthetic_check(args.seeds)
+    model_rows = model_check(args.work) if args.work else []
+    write_results(synthetic_rows, model_rows, args, time.time() - started)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,134 @@
+"""Does colour depend on range? The pooled within-track slope of colour along SfM tracks.
+
+A 3D point seen from several cameras (one COLMAP track) has one colour. Through water its
+pixels darken with range (attenuation) and drift towards the veiling light (backscatter), so in
+the input images log colour falls with range; once the water is removed (the restored render)
+it should not depend on range at all. Pooling the tracks with a fixed effect each (every track
+its own intercept, one common slope: the "within" least-squares estimator) compares each point
+only with itself, so the points' different colours do not enter the slope.
+
+    slope_c = sum_t sum_i (z_ti - mean_t z) (y_tic - mean_t y_c) / sum_t sum_i (z_ti - mean_t z)^2
+
+with ``y = log(colour)`` (or the colour itself). The standard error is cluster-robust by track
+(the observations of one point share its errors). :func:`slope_reduction` says how much of the
+input's range dependence the restoration removed: ``1 - |restored| / |input|``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TrackSlope:
+    """The pooled within-track slope per channel.
+
+    Attributes:
+        slope: (C,) change of (log) colour per unit of range.
+        stderr: (C,) its cluster-robust (by track) standard error.
+        tracks: tracks used (two or more observations at different ranges).
+        observations: their observations.
+    """
+
+    slope: np.ndarray
+    stderr: np.ndarray
+    tracks: int
+    observations: int
+
+
+def track_slope(track_ids: np.ndarray, ranges: np.ndarray, colours: np.ndarray, *,
+                log: bool = True, floor: float = 1e-3) -> TrackSlope:
+    """The within-track least-squares slope of colour against range, per channel.
+
+    Args:
+        track_ids: (N,) integer id of the 3D point each observation belongs to.
+        ranges: (N,) distance from the camera centre to the point.
+        colours: (N, C) linear colour of the point's pixel in that view.
+        log: fit log colour (a relative change per unit range, free of the points'
+            brightness) rather than the colour itself.
+        floor: with ``log``, colours are clipped below at ``floor`` (log of 0).
+
+    Returns:
+        the slope per channel, its standard error and how many tracks / observations it rests
+        on (NaN slopes when no track has two observations at different ranges).
+
+    Example::
+
+        fit = track_slope(ids, ranges, rgb)      # fit.slope[2]: blue's slope
+    """
+    ids = np.asarray(track_ids)
+    z = np.asarray(ranges, dtype=np.float64)
+    values = np.asarray(colours, dtype=np.float64)
+    if values.ndim == 1:
+        values = values[:, None]
+    if not (ids.shape == z.shape == values.shape[:1]):
+        raise ValueError(f"track_ids {ids.shape}, ranges {z.shape} and colours {values.shape} "
+                         f"disagree in length")
+    y = np.log(np.maximum(values, floor)) if log else values
+    _, index, counts = np.unique(ids, return_inverse=True, return_counts=True)
+    tracks = counts.size
+    mean_z = np.bincount(index, z, tracks) / np.maximum(counts, 1)
+    centred_z = z - mean_z[index]
+    spread = np.bincount(index, centred_z ** 2, tracks)
+    used_tracks = (counts >= 2) & (spread > 1e-12 * np.maximum(mean_z ** 2, 1e-300))
+    used = used_tracks[index]
+    channels = y.shape[1]
+    if not used.any():
+        nan = np.full(channels, np.nan)
+        return TrackSlope(nan, nan.copy(), 0, 0)
+    mean_y = np.stack([np.bincount(index, y[:, c], tracks) for c in range(channels)], 1) \
+        / np.maximum(counts, 1)[:, None]
+    centred_y = y - mean_y[index]
+    cz, cy, where = centred_z[used], centred_y[used], index[used]
+    denominator = float(np.sum(cz ** 2))
+    slope = (cz[:, None] * cy).sum(0) / denominator
+    residual = cy - cz[:, None] * slope
+    scores = np.stack([np.bincount(where, cz * residual[:, c], tracks) for c in
+                       range(channels)], 1)
+    n_tracks = int(used_tracks.sum())
+    correction = n_tracks / max(n_tracks - 1, 1)
+    stderr = np.sqrt(correction * (scores ** 2).sum(0)) / denominator
+    return TrackSlope(slope, stderr, n_tracks, int(used.sum()))
+
+
+def slope_reduction(input_slope: np.ndarray, restored_slope: np.ndarray) -> np.ndarray:
+    """``1 - |restored| / |input|`` per channel: 1 when the restoration removed every range
+    dependence, 0 when it left it as it was, negative when it made it worse (NaN where the input
+    has no slope)."""
+    before = np.abs(np.asarray(input_slope, dtype=np.float64))
+    after = np.abs(np.asarray(restored_slope, dtype=np.float64))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(before > 0, 1.0 - after / before, np.nan)
+
+
+def colour_slope_summary(track_ids: np.ndarray, ranges: np.ndarray, observed: np.ndarray,
+                         restored: np.ndarray, *, log: bool = True,
+                         floor: float = 1e-3) -> dict:
+    """The input's and the restoration's slopes on the same observations, and the reduction.
+
+    Args:
+        track_ids, ranges: (N,) as for :func:`track_slope`.
+        observed: (N, 3) input (underwater) colours; restored: (N, 3) restored colours.
+        log, floor: as for :func:`track_slope`.
+
+    Returns:
+        ``{"input": {...}, "restored": {...}, "reduction": [3], "reduction_overall"}``; a
+        slope record holds ``slope``, ``stderr`` (lists per channel), ``tracks``,
+        ``observations``. ``reduction_overall`` is ``1 - sum|restored| / sum|input|`` over
+        the channels.
+    """
+    before = track_slope(track_ids, ranges, observed, log=log, floor=floor)
+    after = track_slope(track_ids, ranges, restored, log=log, floor=floor)
+    total = float(np.sum(np.abs(before.slope)))
+    return {"log_colour": log,
+            "input": _record(before), "restored": _record(after),
+            "reduction": slope_reduction(before.slope, after.slope).tolist(),
+            "reduction_overall": (1.0 - float(np.sum(np.abs(after.slope))) / total
+                                  if total > 0 else float("nan"))}
+
+
+def _record(fit: TrackSlope) -> dict:
+    return {"slope": fit.slope.tolist(), "stderr": fit.stderr.tolist(), "tracks": fit.tracks,
+            "observations": fit.observations}

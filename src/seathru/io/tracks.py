@@ -1,0 +1,223 @@
+"""The poses step's COLMAP tracks as colour observations: input and restored colour of every
+3D point in every view that sees it, and their range (``seathru.eval.track_slope``).
+
+Reads the COLMAP model the poses step keeps in ``poses/sparse`` (source units; its images are
+named ``<frame>.png``; posed datasets read from a source have none). Each 3D point is projected
+with the camera file's own (undistorted, normalised) cameras into the views of its track, so
+its pixel is that of the pipeline's linear image ``images/<frame>.tiff``; the range is the
+distance from the camera centre to the point, in source units. The restored colour of that
+pixel is rendered with the trained model for every view of the track (the render step writes
+restored images of the held-out views only, and few points are seen in two of those).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from seathru.errors import PipelineError
+from seathru.io.cameras import CameraSet
+from seathru.io.colmap import read_model
+from seathru.io.images import read_image, read_mask
+
+log = logging.getLogger(__name__)
+
+SPARSE_DIR = "sparse"
+MIN_TRACKS = 20     # fewer tracks: no slope is reported
+
+
+@dataclass
+class TrackObservations:
+    """Observations of 3D points, one row each (N rows)."""
+
+    track_ids: np.ndarray   # (N,) COLMAP point3D id
+    frames: np.ndarray      # (N,) index into ``names``
+    names: list[str]        # frame names
+    rows: np.ndarray        # (N,) pixel row in the frame's image
+    cols: np.ndarray        # (N,) pixel column
+    ranges: np.ndarray      # (N,) camera centre to point, source units
+    observed: np.ndarray    # (N, 3) input linear colour at the pixel
+    held_out: np.ndarray    # (N,) bool: the frame's split is 'test'
+
+
+def track_observations(cameras: CameraSet, model_dir: Path, max_points: int = 20000,
+                       seed: int = 0) -> TrackObservations:
+    """Every observation of the COLMAP model's 3D points in the camera file's frames.
+
+    Observations that project outside the image, behind the camera, onto a masked-out pixel
+    or onto a non-finite pixel are left out; at most ``max_points`` points (a random draw).
+
+    Raises:
+        PipelineError: the model cannot be read (names the folder).
+    """
+    model = read_model(model_dir)
+    frames = {f.name: i for i, f in enumerate(cameras.frames)}
+    image_frame = {image_id: frames.get(Path(image.name).stem, -1)
+                   for image_id, image in model.images.items()}
+    point_ids, xyz, frame_index = [], [], []
+    for point_id, point in model.points3D.items():
+        for element in point.track.elements:
+            index = image_frame.get(element.image_id, -1)
+            if index >= 0:
+                point_ids.append(point_id)
+                xyz.append(point.xyz)
+                frame_index.append(index)
+    point_ids, frame_index = np.asarray(point_ids, np.int64), np.asarray(frame_index, np.int64)
+    xyz = np.asarray(xyz, np.float64).reshape(-1, 3)
+    unique = np.unique(point_ids)
+    if unique.size > max_points:
+        keep = np.isin(point_ids, np.random.default_rng(seed).choice(unique, max_points,
+                                                                     replace=False))
+        point_ids, frame_index, xyz = point_ids[keep], frame_index[keep], xyz[keep]
+    normalised = (xyz - np.asarray(cameras.centre, np.float64)) * cameras.scale
+    rows = np.full(len(xyz), -1, np.int64)
+    cols = rows.copy()
+    ranges = np.full(len(xyz), np.nan)
+    observed = np.full((len(xyz), 3), np.nan)
+    for index, frame in enumerate(cameras.frames):
+        here = np.flatnonzero(frame_index == index)
+        if here.size == 0:
+            continue
+        c2w = frame.c2w_array
+        offset = normalised[here] - c2w[:3, 3]
+        camera = offset @ c2w[:3, :3]              # R^T (p - t), OpenCV axes
+        depth = camera[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = frame.fx * camera[:, 0] / depth + frame.cx
+            v = frame.fy * camera[:, 1] / depth + frame.cy
+        col, row = np.floor(u), np.floor(v)
+        inside = (depth > 0) & (col >= 0) & (col < frame.width) & (row >= 0) & \
+            (row < frame.height)
+        image = read_image(cameras.image_path(frame))[..., :3]
+        mask_path = cameras.mask_path(frame)
+        mask = read_mask(mask_path) if mask_path is not None and mask_path.is_file() else None
+        good = here[inside]
+        r, c = row[inside].astype(np.int64), col[inside].astype(np.int64)
+        valid = np.isfinite(image[r, c]).all(-1)
+        if mask is not None:
+            valid &= (mask[..., 0] if mask.ndim == 3 else mask)[r, c] > 0
+        good, r, c = good[valid], r[valid], c[valid]
+        rows[good], cols[good] = r, c
+        ranges[good] = np.linalg.norm(offset[inside][valid], axis=1) / cameras.scale
+        observed[good] = image[r, c]
+    found = rows >= 0
+    held_out = np.array([f.split == "test" for f in cameras.frames])[frame_index]
+    return TrackObservations(point_ids[found], frame_index[found],
+                             [f.name for f in cameras.frames], rows[found], cols[found],
+                             ranges[found], observed[found], held_out[found])
+
+
+def restored_colours(model, cameras: CameraSet, obs: TrackObservations,
+                     chunk: int = 8192) -> np.ndarray:
+    """(N, 3) restored (water removed) colour the model renders at each observation's pixel
+    (the ray through the pixel's centre, as ``seathru.nerf.rays.camera_rays_np``)."""
+    import torch
+
+    from seathru.nerf.inference import render_rays
+
+    colours = np.zeros((len(obs.rows), 3), np.float32)
+    for index, frame in enumerate(cameras.frames):
+        here = np.flatnonzero(obs.frames == index)
+        if here.size == 0:
+            continue
+        c2w = frame.c2w_array
+        camera = np.stack([(obs.cols[here] + 0.5 - frame.cx) / frame.fx,
+                           (obs.rows[here] + 0.5 - frame.cy) / frame.fy,
+                           np.ones(here.size)], axis=-1)
+        directions = camera @ c2w[:3, :3].T
+        directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
+        origins = np.broadcast_to(c2w[:3, 3], directions.shape)
+        count = here.size
+        rendered = render_rays(model, torch.from_numpy(origins.astype(np.float32)),
+                               torch.from_numpy(directions.astype(np.float32)),
+                               torch.full((count,), float(frame.near)),
+                               torch.full((count,), float(frame.far)), chunk)
+        colours[here] = rendered["restored"].numpy()
+    return colours
+
+
+def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None = None,
+                       min_tracks: int = MIN_TRACKS) -> dict | None:
+    """``summary.json``'s ``track_colour_slope``: the within-track slope of log colour against
+    range in the input images and in the restored renders, per channel, and its reduction
+    (``seathru.eval.track_slope.colour_slope_summary``) over all views of the tracks, and over
+    the held-out views alone where at least ``min_tracks`` tracks have two held-out
+    observations (else that part is ``{"source": "none", "reason": ...}``). None without a
+    COLMAP model next to the camera file; ``{"source": "none", "reason": ...}`` without a
+    trained model.
+    """
+    from seathru.eval.track_slope import colour_slope_summary
+
+    model_dir = (cameras.root or Path(".")) / SPARSE_DIR
+    if not model_dir.is_dir():
+        return None
+    if not Path(model_path).is_file():
+        return {"source": "none", "reason": f"{model_path}: no trained model"}
+    obs = track_observations(cameras, model_dir)
+    result: dict = {"source": str(model_dir), "range_units": "source units (COLMAP's)",
+                    "restored_from": "the trained model, rendered at every observation's pixel"}
+    parts = {"all_views": np.ones(len(obs.rows), bool), "held_out_views": obs.held_out}
+    restored = None
+    for name, keep in parts.items():
+        ids, counts = np.unique(obs.track_ids[keep], return_counts=True)
+        enough = int((counts >= 2).sum())
+        if enough < min_tracks:
+            result[name] = {"source": "none", "reason": f"{enough} tracks have two or more "
+                                                        f"observations (need {min_tracks})"}
+            continue
+        if restored is None:
+            from seathru.io.model import load_model
+            from seathru.nerf.device import select_device
+
+            try:
+                model = load_model(model_path, select_device("auto", threads))
+            except PipelineError as exc:
+                return {"source": "none", "reason": str(exc)}
+            restored = restored_colours(model, cameras, obs)
+        result[name] = colour_slope_summary(obs.track_ids[keep], obs.ranges[keep],
+                                            obs.observed[keep], restored[keep])
+    headline = result.get("all_views", {})
+    if "reduction" in headline:
+        log.info("track colour slope (log colour per unit range, R G B): input %s, restored "
+                 "%s, reduction %s", _fmt(headline["input"]["slope"]),
+                 _fmt(headline["restored"]["slope"]), _fmt(headline["reduction"]))
+    return result
+
+
+def _fmt(values) -> str:
+    return " ".join(f"{v:.3g}" for v in values)
+
+
+def input_colour_change(cameras: CameraSet, max_points: int = 5000) -> dict | None:
+    """How the input colour of the training views changes with range along COLMAP tracks:
+    evidence of water for the medium decision that does not depend on the model.
+
+    Returns:
+        ``{"tracks", "observations", "median_range", "slope", "stderr", "t",
+        "change_over_median_range"}`` (per channel, log colour; the change is
+        ``slope * median range``), or None without a COLMAP model beside the camera file or
+        with fewer than :data:`MIN_TRACKS` tracks.
+    """
+    from seathru.eval.track_slope import track_slope
+
+    model_dir = (cameras.root or Path(".")) / SPARSE_DIR
+    if not model_dir.is_dir():
+        return None
+    try:
+        obs = track_observations(cameras, model_dir, max_points=max_points)
+    except PipelineError as exc:
+        log.warning("no track evidence: %s", exc)
+        return None
+    train = ~obs.held_out
+    fit = track_slope(obs.track_ids[train], obs.ranges[train], obs.observed[train])
+    if fit.tracks < MIN_TRACKS:
+        return None
+    median = float(np.median(obs.ranges[train]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(fit.stderr > 0, fit.slope / fit.stderr, 0.0)
+    return {"tracks": int(fit.tracks), "observations": int(fit.observations),
+            "median_range": median, "slope": fit.slope.tolist(), "stderr": fit.stderr.tolist(),
+            "t": t.tolist(), "change_over_median_range": (fit.slope * median).tolist()}

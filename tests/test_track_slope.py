@@ -1,0 +1,189 @@
+"""Tests for seathru.eval.track_slope (colour against range along SfM tracks) and
+seathru.io.tracks (the tracks of the poses step's COLMAP model as colour observations)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from seathru.eval.track_slope import colour_slope_summary, slope_reduction, track_slope
+from seathru.io import tracks as tracks_io
+from seathru.io.cameras import CameraSet, Frame
+from seathru.io.images import write_float_tiff
+from seathru.nerf.rays import camera_rays_np
+from seathru.sim.scene import look_at
+
+
+def _tracks(rng: np.random.Generator, count: int, slope: np.ndarray, noise: float = 0.0,
+            most: int = 6):
+    """Observations of ``count`` points: log colour = the point's own + slope * range."""
+    sizes = rng.integers(1, most + 1, count)
+    ids = np.repeat(np.arange(count) * 7 + 3, sizes)          # ids need not be 0..n-1
+    ranges = rng.uniform(1.0, 10.0, ids.size)
+    own = rng.normal(-1.5, 0.8, (count, 3))
+    log_colour = own[np.searchsorted(np.arange(count) * 7 + 3, ids)] + ranges[:, None] * slope
+    log_colour += noise * rng.standard_normal(log_colour.shape)
+    return ids, ranges, np.exp(log_colour), sizes
+
+
+def _reference_slope(ids, ranges, values) -> np.ndarray:
+    """Float64 least squares with one indicator column per track and a common slope."""
+    _, index = np.unique(ids, return_inverse=True)
+    design = np.zeros((ids.size, index.max() + 2))
+    design[np.arange(ids.size), index] = 1.0
+    design[:, -1] = ranges
+    solution, *_ = np.linalg.lstsq(design, values, rcond=None)
+    return solution[-1]
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 31), count=st.integers(5, 60),
+       slope=st.lists(st.floats(-0.5, 0.5), min_size=3, max_size=3),
+       noise=st.floats(0.0, 0.3))
+def test_slope_is_the_fixed_effects_least_squares_slope(seed, count, slope, noise):
+    rng = np.random.default_rng(seed)
+    ids, ranges, colours, sizes = _tracks(rng, count, np.array(slope), noise)
+    fit = track_slope(ids, ranges, colours)
+    if (sizes >= 2).sum() == 0:
+        assert fit.tracks == 0 and np.isnan(fit.slope).all()
+        return
+    reference = _reference_slope(ids, ranges, np.log(np.maximum(colours, 1e-3)))  # the floor
+    np.testing.assert_allclose(fit.slope, reference, rtol=1e-7, atol=1e-10)
+    assert fit.tracks == int((sizes >= 2).sum())
+    assert fit.observations == int(sizes[sizes >= 2].sum())
+    # on the colour itself, the same estimator
+    np.testing.assert_allclose(track_slope(ids, ranges, colours, log=False).slope,
+                               _reference_slope(ids, ranges, colours), rtol=1e-7, atol=1e-12)
+
+
+def test_known_slope_is_recovered_and_its_error_is_honest():
+    truth = np.array([-0.3, -0.1, 0.05])
+    errors, stderrs = [], []
+    for seed in range(40):
+        ids, ranges, colours, _ = _tracks(np.random.default_rng(seed), 200, truth, noise=0.1)
+        fit = track_slope(ids, ranges, colours)
+        errors.append(fit.slope - truth)
+        stderrs.append(fit.stderr)
+    errors, stderrs = np.array(errors), np.array(stderrs)
+    assert np.all(np.abs(errors.mean(0)) < 3 * errors.std(0) / np.sqrt(len(errors)) + 1e-4)
+    # the cluster-robust standard error matches the spread of the estimates over draws
+    ratio = np.median(stderrs, 0) / errors.std(0, ddof=1)
+    assert np.all((ratio > 0.7) & (ratio < 1.4)), ratio
+
+
+def test_range_independent_colour_has_zero_slope_and_full_reduction():
+    ids, ranges, colours, _ = _tracks(np.random.default_rng(1), 100, np.zeros(3))
+    assert np.allclose(track_slope(ids, ranges, colours).slope, 0.0, atol=1e-12)
+    water = colours * np.exp(-np.array([0.4, 0.2, 0.1]) * ranges[:, None]) \
+        + np.array([0.02, 0.1, 0.2]) * (1 - np.exp(-0.3 * ranges[:, None]))
+    summary = colour_slope_summary(ids, ranges, water, colours)
+    assert summary["input"]["slope"][0] < -0.1                 # red fades with range
+    assert summary["reduction"] == pytest.approx([1.0, 1.0, 1.0], abs=1e-9)
+    assert summary["reduction_overall"] == pytest.approx(1.0, abs=1e-9)
+    assert summary["input"]["tracks"] == summary["restored"]["tracks"]
+
+
+def test_reduction_is_one_minus_the_ratio_of_absolute_slopes():
+    reduction = slope_reduction([-0.2, 0.1, 0.0], [-0.05, -0.2, 0.1])
+    assert reduction[0] == pytest.approx(0.75)
+    assert reduction[1] == pytest.approx(-1.0)                 # worse than the input
+    assert np.isnan(reduction[2])                              # no slope to reduce
+
+
+def test_tracks_with_one_observation_or_one_range_are_left_out():
+    ids = np.array([1, 2, 2, 3, 3, 3])
+    ranges = np.array([1.0, 2.0, 2.0, 1.0, 2.0, 3.0])
+    colours = np.exp(np.array([0.0, 5.0, 5.0, 0.1, 0.2, 0.3]))[:, None].repeat(3, 1)
+    fit = track_slope(ids, ranges, colours)
+    assert (fit.tracks, fit.observations) == (1, 3)
+    assert fit.slope == pytest.approx([0.1, 0.1, 0.1])
+    with pytest.raises(ValueError, match="disagree"):
+        track_slope(ids, ranges[:-1], colours)
+
+
+# ------------------------------------------------------------------- io: tracks as observations
+
+def _scene(root: Path) -> tuple[CameraSet, np.ndarray]:
+    """Three cameras around points near the origin (source units; centre and scale not
+    trivial), their images in images/ (colour: the pixel's row, column, frame)."""
+    centre, scale = np.array([0.5, -0.2, 0.1]), 0.4
+    frames = []
+    (root / "images").mkdir(parents=True)
+    for index, eye in enumerate(([3.0, 0.0, 0.5], [0.0, 4.0, 0.3], [-2.5, -2.5, 0.8])):
+        c2w = look_at(eye, [0.0, 0.0, 0.0])
+        c2w[:3, 3] = (c2w[:3, 3] - centre) * scale
+        name = f"v{index}"
+        rows, cols = np.mgrid[0:60, 0:80].astype(np.float32)
+        write_float_tiff(root / "images" / f"{name}.tiff",
+                         np.stack([rows, cols, np.full_like(rows, index)], -1))
+        frames.append(Frame(name=name, image=f"images/{name}.tiff", width=80, height=60,
+                            fx=70.0, fy=70.0, cx=40.0, cy=30.0, c2w=c2w.tolist(), near=0.1,
+                            far=5.0, split="test" if index == 1 else "train"))
+    cameras = CameraSet(frames=frames, near=0.1, far=5.0, centre=centre.tolist(), scale=scale,
+                        source="colmap", root=root)
+    points = np.random.default_rng(0).uniform(-0.5, 0.5, (25, 3))
+    return cameras, points
+
+
+def test_track_observations_find_each_points_pixel_and_range(tmp_path, monkeypatch):
+    cameras, points = _scene(tmp_path)
+    images = {i + 1: SimpleNamespace(name=f"v{i}.png") for i in range(3)}
+    images[9] = SimpleNamespace(name="not_in_the_camera_file.png")
+    model = SimpleNamespace(images=images, points3D={
+        100 + k: SimpleNamespace(xyz=p, track=SimpleNamespace(elements=[
+            SimpleNamespace(image_id=i) for i in (1, 2, 3, 9)])) for k, p in enumerate(points)})
+    monkeypatch.setattr(tracks_io, "read_model", lambda path: model)
+    obs = tracks_io.track_observations(cameras, tmp_path / "sparse")
+    assert len(obs.rows) > 40 and set(np.unique(obs.frames)) == {0, 1, 2}
+    assert obs.held_out.sum() == (obs.frames == 1).sum()
+    for row, col, frame_index, point_id, distance, colour in zip(
+            obs.rows, obs.cols, obs.frames, obs.track_ids, obs.ranges, obs.observed):
+        frame = cameras.frames[frame_index]
+        point = points[point_id - 100]
+        eye = frame.c2w_array[:3, 3] / cameras.scale + np.asarray(cameras.centre)
+        assert distance == pytest.approx(np.linalg.norm(point - eye), rel=1e-9)
+        assert tuple(colour) == (row, col, frame_index)          # the pixel's own value
+        # the ray of that pixel (the model's own ray code) passes the point within a pixel
+        origins, dirs = camera_rays_np(frame.c2w_array, frame.fx, frame.fy, frame.cx,
+                                       frame.cy, frame.width, frame.height)
+        ray = dirs[row * frame.width + col]
+        normalised = (point - np.asarray(cameras.centre)) * cameras.scale
+        offset = normalised - origins[0]
+        miss = np.linalg.norm(offset - ray * (offset @ ray))
+        assert miss <= np.linalg.norm(offset) / frame.fx * 0.75
+
+
+def test_no_colmap_model_means_no_track_slope(tmp_path):
+    cameras, _ = _scene(tmp_path)
+    assert tracks_io.track_colour_slope(cameras, tmp_path / "model.pt") is None
+    (tmp_path / "sparse").mkdir()
+    result = tracks_io.track_colour_slope(cameras, tmp_path / "model.pt")
+    assert result["source"] == "none" and "model" in result["reason"]
+
+
+def test_restored_colours_come_from_the_ray_of_each_observations_pixel(tmp_path, monkeypatch):
+    """A stand-in model whose restored colour is its ray's direction: each observation gets
+    the direction of its own pixel's ray (the model's ray code as the reference)."""
+    cameras, points = _scene(tmp_path)
+    model = SimpleNamespace(images={i + 1: SimpleNamespace(name=f"v{i}.png") for i in range(3)},
+                            points3D={k: SimpleNamespace(xyz=p, track=SimpleNamespace(elements=[
+                                SimpleNamespace(image_id=i) for i in (1, 2, 3)]))
+                                for k, p in enumerate(points)})
+    monkeypatch.setattr(tracks_io, "read_model", lambda path: model)
+    obs = tracks_io.track_observations(cameras, tmp_path / "sparse")
+
+    def render_rays(model, origins, directions, near, far, chunk=8192):
+        return {"restored": directions.clone()}
+
+    monkeypatch.setattr("seathru.nerf.inference.render_rays", render_rays)
+    colours = tracks_io.restored_colours(None, cameras, obs)
+    for row, col, frame_index, colour in zip(obs.rows, obs.cols, obs.frames, colours):
+        frame = cameras.frames[frame_index]
+        _, dirs = camera_rays_np(frame.c2w_array, frame.fx, frame.fy, frame.cx, frame.cy,
+                                 frame.width, frame.height)
+        np.testing.assert_allclose(colour, dirs[row * frame.width + col], atol=1e-6)
