@@ -291,3 +291,25 @@ def test_open_water_rays_pay_for_object_opacity_while_the_water_is_on():
     assert loss(0.5) - loss(0.0) == pytest.approx(expected, rel=1e-3)
     run.model.medium.set_mode("off")
     assert loss(0.5) == pytest.approx(loss(0.0), rel=1e-6)
+
+
+def test_colour_fading_along_tracks_is_evidence_of_water():
+    from tests.test_nerf_prepare import _dive_image, _frames
+    from seathru.io.cameras import CameraSet
+    from seathru.nerf.prepare import prepare_run
+
+    rng = np.random.default_rng(6)
+    frames = _frames(3)
+    images = [_dive_image(rng, 0)[:48, :64] for _ in frames]
+    config = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0,
+                                                 "steps": 40})
+    change = {"tracks": 500, "t": [-12.0, 1.0, 0.5], "change_over_median_range": [-0.4, 0.02,
+                                                                                   0.01]}
+    evidence = []
+    for track_change in (change, None):
+        run = prepare_run(config, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
+                          [None] * 3, track_change=track_change)
+        trainer = Trainer(run.model, run.data, device="cpu", frames=frames)
+        evidence.append(trainer.select_medium()["statistics"]["evidence_of_water"])
+    assert any("COLMAP tracks" in text and "-40%" in text for text in evidence[0])
+    assert not any("COLMAP tracks" in text for text in evidence[1])

@@ -53,10 +53,12 @@ VIEW_NOTE = ("direction-dependent water (mode view: all of it; veiling: the veil
 MODES = ("off", "global", "view", "veiling")
 DIRECTIONAL = ("view", "veiling")   # water (or its veiling light) that depends on direction
 UNCERTAINTY_METHOD = (
-    "95% intervals around the trained value: Laplace approximation of the profile loss of a "
-    "water fit on the model's own surfaces (seathru.nerf.water_fit.laplace_halfwidths), one "
-    "sample per surface voxel and channel; a parameter whose half-width exceeds 25% of its "
-    "value is not determined by the views")
+    "95% prediction intervals around the trained value: a water fit on the model's own "
+    "surfaces (seathru.nerf.water_fit.robust_halfwidths) gives a cluster-robust statistical "
+    "half-width plus a systematic one from how much parts of the data (near/far, the two sides "
+    "of the scene, without open water, without the dark-pixel bound) disagree; the interval is "
+    "widened by the trained value's distance to that fit. A parameter whose half-width exceeds "
+    "25% of its value is not determined by the views")
 
 
 @dataclass(frozen=True)
@@ -173,9 +175,11 @@ class WaterReport:
         interval, surface = {}, {}
         for key in WATER_KEYS:
             f = factor[key]
-            interval[key] = [[max(0.0, (c - h) * f), (c + h) * f] if math.isfinite(h)
-                             else [0.0, None] for c, h in zip(centre[key],
-                                                             u["halfwidth95"][key])]
+            # the trained value may have drifted from the surface fit since the last refit
+            interval[key] = [[max(0.0, (c - h - abs(c - g)) * f), (c + h + abs(c - g)) * f]
+                             if math.isfinite(h) else [0.0, None]
+                             for c, h, g in zip(centre[key], u["halfwidth95"][key],
+                                                u["surface_fit"][key])]
             surface[key] = [v * f for v in u["surface_fit"][key]]
         return {"method": UNCERTAINTY_METHOD, "interval95": interval,
                 "determined": u["determined"], "surface_fit": surface,

@@ -119,6 +119,11 @@ class MediumConfig:
                                                        "the image is negligible")
     auto_attenuation: float = setting(0.02, help="auto: attenuation over the scene depth below "
                                                  "this is negligible")
+    auto_track_t: float = setting(5.0, help="auto: the input colour's slope against range "
+                                            "along COLMAP tracks counts as evidence of water "
+                                            "when it is this many standard errors from 0 ...")
+    auto_track_change: float = setting(0.1, help="auto: ... and changes the colour by more "
+                                                 "than this share over the median range")
     auto_veiling_spread: float = setting(
         0.1, help="auto: the water starts as veiling (else global) when the open water's "
                   "colour changes with view direction by more than this share of it (the "
@@ -137,8 +142,9 @@ class LossConfig:
     open_water_weight: float = setting(
         0.05, help="weight of the object opacity of rays whose pixel is open water (smooth, "
                    "reaching the top of the frame: seathru.radiometry.open_water), while the "
-                   "water model is on: open water is the water's own colour, not a surface; "
-                   "0 = off")
+                   "water model is on and open water is more than medium.auto_open_water_share "
+                   "of the training pixels: open water is the water's own colour, not a "
+                   "surface; 0 = off")
     distortion_weight: float = setting(0.01, help="weight of the distortion loss")
     density_tv_weight: float = setting(0.0, help="weight of total variation on the density grid")
     recon_eps: float = setting(1e-3, help="eps of the relative reconstruction loss")

@@ -30,7 +30,8 @@ class PreparedRun:
 
 
 def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_frames=(),
-                test_images=(), test_masks=(), device: torch.device | str = "cpu") -> PreparedRun:
+                test_images=(), test_masks=(), device: torch.device | str = "cpu",
+                track_change: dict | None = None) -> PreparedRun:
     """The model and data of a training run.
 
     Args:
@@ -40,6 +41,9 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
             validity masks (H, W) or None.
         test_frames, test_images, test_masks: held-out frames (may be empty).
         device: the torch device.
+        track_change: how the input colour changes with range along COLMAP tracks
+            (``seathru.io.tracks.input_colour_change``), kept in the scene as evidence of
+            water for the medium decision; None when there are no tracks.
 
     Returns:
         the resolved config (``passes`` turned into ``steps``; ``preset=auto`` into a capacity
@@ -55,8 +59,12 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
     config = resolve_batch_rays(config, device.type)
     water_masks = [open_water_mask(image, valid=masks[i] if masks is not None and i < len(masks)
                                    else None) for i, image in enumerate(images)]
+    water_share = open_water_share(water_masks, masks)
+    # a few smooth blocks at the top of the frames are far haze, not open water in view
+    in_view = water_share > config.medium.auto_open_water_share
     data = RayDataset(train_frames, images, masks, device=device,
-                      open_water=water_masks if config.loss.open_water_weight > 0 else None)
+                      open_water=water_masks if config.loss.open_water_weight > 0 and in_view
+                      else None)
     if len(data) == 0:
         raise PipelineError("the training images have no valid pixel (check the masks)")
     if data.dropped_nonfinite:
@@ -77,10 +85,11 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
     scene = scene_from_frames(train_frames, cameras.near, cameras.far, cameras.centre,
                               cameras.scale, veiling if veiling is not None
                               else rgb.mean(0).tolist())
-    scene["open_water_image_share"] = open_water_share(water_masks, masks)
+    scene["open_water_image_share"] = water_share
+    if track_change is not None:
+        scene["track_colour_change"] = track_change
     scene["open_water_direction_spread"] = open_water_direction_spread(
-        train_frames, images, water_masks) \
-        if scene["open_water_image_share"] > config.medium.auto_open_water_share else 0.0
+        train_frames, images, water_masks) if in_view else 0.0
     if config.passes > 0:
         config = dataclasses.replace(config, steps=steps_for_passes(
             config.passes, len(data), config.batch_rays))

@@ -39,7 +39,8 @@ from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruc
                                  total_variation_3d, transmittance_prior)
 from seathru.nerf.model import SeaThruModel
 from seathru.nerf.rays import RayBatch, RayDataset
-from seathru.nerf.water_fit import SurfaceData, fit_water, laplace_halfwidths, surface_data
+from seathru.nerf.water_fit import (SurfaceData, fit_water, laplace_halfwidths,
+                                    robust_halfwidths, surface_data)
 
 CHECKPOINT_FORMAT = "seathru-train-checkpoint/1"
 WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
@@ -299,8 +300,9 @@ class Trainer:
         rays. The images' own evidence of water decides ties: open water in the photographs
         (smooth regions reaching the top of the frame, ``seathru.radiometry.open_water``) or in
         the model (rays that meet no surface; both above ``auto_open_water_share``), a density
-        wall at the far bound standing in for it, or attenuation the surfaces seen over a range
-        of distances determine (``assess_water``). With such evidence the water stays unless no
+        wall at the far bound standing in for it, the input colour changing with range along
+        the COLMAP tracks (``seathru.io.tracks.input_colour_change``), or attenuation the
+        surfaces seen over a range of distances determine (``assess_water``). With such evidence the water stays unless no
         water is better by ``auto_margin_db``; without it, the water must be better by that
         margin. The paper's fully view-dependent water is never picked automatically: it can
         also absorb errors of a half-trained scene; ask for it with ``medium.mode=view``.
@@ -330,10 +332,18 @@ class Trainer:
         surface_attenuation = 1.0 - math.exp(-max(assessment.get("surface_fit", {}).get(
             "sigma_attn", [0.0])) * depth)
         image_water = float(self.model.scene.get("open_water_image_share", 0.0))
+        tracks = self.model.scene.get("track_colour_change") or {}
+        fading = [abs(t) > c.medium.auto_track_t and abs(change) > c.medium.auto_track_change
+                  for t, change in zip(tracks.get("t", []),
+                                       tracks.get("change_over_median_range", []))]
         evidence = [text for present, text in (
             (image_water > c.medium.auto_open_water_share,
              f"{100 * image_water:.1f}% of the training pixels are open water (smooth regions "
              "reaching the top of the frame)"),
+            (any(fading),
+             "along {} COLMAP tracks the input colour changes with range by {} over the median "
+             "range (log colour, R G B)".format(tracks.get("tracks"), ", ".join(
+                 f"{100 * v:+.0f}%" for v in tracks.get("change_over_median_range", [])))),
             (open_water > c.medium.auto_open_water_share,
              f"{100 * open_water:.1f}% of the rays meet no surface and show the veiling light "
              "(open water)"),
@@ -345,6 +355,7 @@ class Trainer:
         stats = {"backscatter_share": backscatter_share, "attenuation_over_depth": attenuation,
                  "scene_depth_median": depth, "object_hit_share": float(hit.float().mean()),
                  "open_water_share": open_water, "open_water_image_share": image_water,
+                 "track_colour_change": tracks or None,
                  "far_wall_share": wall,
                  "surface_attenuation_over_depth": surface_attenuation,
                  "attenuation_determined": determined, "evidence_of_water": evidence,
@@ -477,8 +488,8 @@ class Trainer:
     @torch.no_grad()
     def assess_water(self) -> dict | None:
         """How well the images determine the trained water: a fit on the final geometry's
-        surfaces and its Laplace half-widths (``water_fit.laplace_halfwidths``), normalised
-        units. None when the medium is neither global nor veiling (whose c_med is the mean
+        surfaces and its robust 95% half-widths (``water_fit.robust_halfwidths``: statistical and
+        systematic parts), normalised units. None when the medium is neither global nor veiling (whose c_med is the mean
         over directions) or there are too few surface pixels."""
         model = self.model
         if model.medium.mode not in ("global", "veiling"):
@@ -490,7 +501,10 @@ class Trainer:
                         model.water_parameters(), self.config.medium.refit_steps,
                         model.medium.colour_max,
                         data.dark if self.config.medium.dark_pixel_bound else None)
-        spread = laplace_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups)
+        spread = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,
+                                   colour_max=model.medium.colour_max,
+                                   dark=data.dark if self.config.medium.dark_pixel_bound
+                                   else None)
         return {"surface_fit": {k: getattr(fit, k) for k in WATER_KEYS},
                 "halfwidth95": spread.halfwidth, "determined": spread.determined,
                 "pixels": fit.pixels, "groups": fit.groups,
