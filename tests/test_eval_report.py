@@ -458,3 +458,93 @@ def test_frontier_labels_each_run_with_its_capacity_level():
             "demo+old (final only)", "demo [auto \u2192 fast]",
             "demo+quality [quality]"} <= labels
     plt.close(figure)
+
+
+# -- colour along COLMAP tracks ----------------------------------------------------------------
+
+BETA = np.array([0.4, 0.2, 0.1])   # the water's attenuation per unit range, R G B
+
+
+def _track_slope(removed: float, held_out: bool = True, seed: int = 0) -> dict:
+    """``track_colour_slope`` as the evaluate step writes it, fitted on synthetic tracks whose
+    input colour falls as exp(-BETA range) and whose restoration keeps ``1 - removed`` of that."""
+    from seathru.eval.track_slope import colour_slope_summary
+
+    rng = np.random.default_rng(seed)
+    ids = np.repeat(np.arange(40), 4)
+    ranges = rng.uniform(1.0, 5.0, ids.size)
+    albedo = rng.uniform(0.2, 0.8, (40, 3))[ids]
+    noise = np.exp(rng.normal(0.0, 0.01, (ids.size, 3)))
+    observed = albedo * np.exp(-BETA * ranges[:, None]) * noise
+    restored = albedo * np.exp(-(1.0 - removed) * BETA * ranges[:, None]) * noise
+    held = ids < 25
+    return {"source": "/d/sparse/0", "range_units": "source units (COLMAP's)",
+            "restored_from": "the trained model",
+            "all_views": colour_slope_summary(ids, ranges, observed, restored),
+            "held_out_views": (colour_slope_summary(ids[held], ranges[held], observed[held],
+                                                    restored[held]) if held_out else
+                               {"source": "none", "reason": "3 tracks have two or more "
+                                                            "observations (need 20)"})}
+
+
+def _slope_records() -> list[DatasetRecord]:
+    reef, lagoon, plain, untrained = (_summary(name, 25.0) for name in
+                                      ("reef", "lagoon", "plain", "untrained"))
+    reef.track_colour_slope = _track_slope(0.8)
+    lagoon.track_colour_slope = _track_slope(0.4, held_out=False, seed=1)
+    untrained.track_colour_slope = {"source": "none", "reason": "/d/model.pt: no trained model"}
+    return [DatasetRecord("reef", summary=reef), DatasetRecord("lagoon", summary=lagoon),
+            DatasetRecord("plain", summary=plain), DatasetRecord("untrained", summary=untrained),
+            DatasetRecord("broken", status="failed", failed_step="train", error="boom")]
+
+
+def test_track_slope_reduction_column_only_where_fitted():
+    records = _slope_records()
+    table = summary_table(records)
+    columns = list(table.columns)
+    assert columns.index("track_slope_reduction") + 1 == columns.index("train_time_s")
+    rows = table.set_index("dataset")["track_slope_reduction"]
+    assert rows["reef"] == pytest.approx(0.8, abs=0.02)     # the share of the slope removed
+    assert rows["lagoon"] == pytest.approx(0.4, abs=0.02)
+    assert rows[["plain", "untrained", "broken"]].isna().all()
+    # a fit without an input slope (null in summary.json) is a missing value, not an error
+    flat = _summary("flat", 20.0)
+    flat.track_colour_slope = {**_track_slope(0.5), "all_views": {
+        **_track_slope(0.5)["all_views"], "reduction_overall": None}}
+    both = summary_table([records[0], DatasetRecord("flat", summary=flat)])
+    assert np.isnan(both.set_index("dataset").loc["flat", "track_slope_reduction"])
+    bare = summary_table([r for r in records if r.dataset in ("plain", "untrained", "broken")])
+    assert "track_slope_reduction" not in bare.columns
+
+
+def test_html_shows_slopes_per_channel_against_the_goal_and_why_a_part_is_missing():
+    from seathru.eval.report import TRACK_SLOPE_GOAL
+
+    records = _slope_records()
+    page = render_html(summary_table(records), records, {}, {}, "now")
+    summary = page.split('<table class="summary">')[1].split("</table>")[0]
+    assert "<th>track_slope_reduction</th>" in summary
+    reef_all = records[0].summary.track_colour_slope["all_views"]
+    assert f"<td>{100 * reef_all['reduction_overall']:.0f}%</td>" in summary
+    section = page.split("<h2>Colour along COLMAP tracks</h2>")[1].split("<h2>")[0]
+    assert "plain" not in section and "broken" not in section
+    assert "untrained" in section and "/d/model.pt: no trained model" in section
+    reef = section[section.index(">reef<"):section.index(">lagoon<")]
+    for channel, name in enumerate("RGB"):
+        slope, error = reef_all["input"]["slope"][channel], reef_all["input"]["stderr"][channel]
+        assert slope == pytest.approx(-BETA[channel], rel=0.05)
+        assert 0 < error < 0.1 * BETA[channel]
+        restored = reef_all["restored"]["slope"][channel]
+        assert (f"<td>{name}</td><td>{slope:.4g} &plusmn; {error:.4g}</td><td>{restored:.4g} "
+                f"&plusmn; {reef_all['restored']['stderr'][channel]:.4g}</td>"
+                f"<td>{100 * reef_all['reduction'][channel]:.0f}%</td>") in reef
+    counts = (f'<td rowspan="3">{reef_all["input"]["tracks"]}</td>'
+              f'<td rowspan="3">{reef_all["input"]["observations"]}</td>')
+    assert counts in reef and reef_all["input"]["tracks"] == 40
+    goal = f"{100 * TRACK_SLOPE_GOAL:.0f}%"
+    assert reef.count(f"(meets the {goal} goal)") == 2        # all views and held-out views
+    lagoon = section[section.index(">lagoon<"):section.index(">untrained<")]
+    assert lagoon.count(f"(below the {goal} goal)") == 1 and "meets" not in lagoon
+    assert "not measured: 3 tracks have two or more observations (need 20)" in lagoon
+    plain = render_html(summary_table(records[2:3]), records[2:3], {}, {}, "now")
+    assert "COLMAP tracks" not in plain and "track_slope" not in plain

@@ -12,7 +12,12 @@ Where the evaluate step ran a community protocol (``evaluate.protocol=nerfbaseli
 means sit beside ours as ``<protocol>_psnr`` / ``_ssim`` / ``_lpips`` (:func:`protocol_cells`);
 where it measured a colour chart, the mean CIEDE2000 and grey angular error of the photo, the
 ingest image and the restored render are the ``chart_*`` columns (:func:`chart_cells`) and the
-page's "Colour charts" section (:func:`chart_rows`). Datasets without them add nothing.
+page's "Colour charts" section (:func:`chart_rows`). Where it fitted the colour's slope
+against range along COLMAP tracks (``track_colour_slope``, ``seathru.eval.track_slope``), the
+share of the input's slope the restoration removed over all views is ``track_slope_reduction``
+(:func:`track_slope_cells`) and the page's "Colour along COLMAP tracks" section gives the
+slopes per channel against the :data:`TRACK_SLOPE_GOAL` (:func:`track_slope_rows`). Datasets
+without them add nothing.
 
 What the train step chose, from its ``selection.json`` and ``model.pt``: the capacity level
 (``capacity``: ``auto → fast`` when ``train.preset=auto`` chose it, ``quality`` for a named
@@ -48,8 +53,13 @@ TABLE_COLUMNS = (
     "error", "views",
     "psnr_linear", "ssim_linear", "psnr_srgb", "ssim_srgb", "lpips",
     "restored_psnr_linear", "restored_ssim_linear", "full_vs_clean_psnr_linear",
-    "depth_median_abs_rel", "depth_corr", *CHART_COLUMNS, "train_time_s", "train_steps",
+    "depth_median_abs_rel", "depth_corr", *CHART_COLUMNS, "track_slope_reduction",
+    "train_time_s", "train_steps",
     "capacity", "passes", "render_fps", "render_resolution", "medium")
+#: The share of the input's colour slope along tracks a restoration should remove on a real dive.
+TRACK_SLOPE_GOAL = 0.7
+#: The parts of ``track_colour_slope`` (views of the tracks' observations) and their labels.
+TRACK_SLOPE_PARTS = (("all_views", "all views"), ("held_out_views", "held-out views"))
 ALWAYS_SHOWN = ("dataset", "status", "warnings", "needs_a_look", "error", "failed_step")
 #: A protocol's means shown, in this order, as ``<protocol>_<metric>`` after ``lpips``.
 PROTOCOL_METRICS = ("psnr", "ssim", "lpips", "lpips_vgg")
@@ -343,6 +353,78 @@ def chart_cells(summary: EvaluationSummary | None) -> dict[str, float | None]:
     return cells
 
 
+def _finite(value) -> float | None:
+    number = value if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+    return float(number) if number is not None and np.isfinite(number) else None
+
+
+def _slope_part(slope: dict | None, key: str) -> dict | None:
+    """A measured part of ``track_colour_slope`` (with its ``reduction``), else None."""
+    part = slope.get(key) if isinstance(slope, dict) else None
+    return part if isinstance(part, dict) and "reduction" in part else None
+
+
+def track_slope_cells(summary: EvaluationSummary | None) -> dict[str, float | None]:
+    """``track_slope_reduction``: the share of the input's colour slope along COLMAP tracks
+    the restoration removed over all views (``reduction_overall``; 1 removes all of it, below 0
+    made it steeper); {} where the evaluation fitted none.
+
+    Example::
+
+        track_slope_cells(summary)   # {"track_slope_reduction": 0.51}
+    """
+    part = _slope_part(summary.track_colour_slope if summary is not None else None, "all_views")
+    return {} if part is None else {"track_slope_reduction": _finite(
+        part.get("reduction_overall"))}
+
+
+def _slope_fit(record) -> list[tuple[float | None, float | None]]:
+    """(slope, stderr) per channel of one slope record (``seathru.eval.track_slope``)."""
+    record = record if isinstance(record, dict) else {}
+    slopes, errors = list(record.get("slope") or []), list(record.get("stderr") or [])
+    return [(_finite(s), _finite(errors[i]) if i < len(errors) else None)
+            for i, s in enumerate(slopes)]
+
+
+def track_slope_rows(records: Sequence[DatasetRecord]) -> list[dict]:
+    """One entry per dataset whose evaluation has a ``track_colour_slope`` (the page's
+    "Colour along COLMAP tracks"): ``dataset``, ``range_units``, ``reason`` (why nothing was
+    fitted, else None) and ``parts``, per :data:`TRACK_SLOPE_PARTS` (by label): ``label``,
+    ``reason`` (why that part is missing, else None), ``tracks``, ``observations`` (of the
+    input's fit), ``channels`` (``channel``, ``input`` and ``restored`` as (slope, stderr),
+    ``reduction``), ``overall`` and ``meets_goal`` (``overall >= TRACK_SLOPE_GOAL``)."""
+    rows = []
+    for record in records:
+        slope = record.summary.track_colour_slope if record.summary is not None else None
+        if not isinstance(slope, dict):
+            continue
+        parts = []
+        for key, label in TRACK_SLOPE_PARTS if slope.get("source") != "none" else ():
+            part, raw = _slope_part(slope, key), slope.get(key)
+            if part is None:
+                reason = raw.get("reason") if isinstance(raw, dict) else None
+                parts.append({"label": label, "reason": str(reason or "not measured")})
+                continue
+            inputs, restored = _slope_fit(part.get("input")), _slope_fit(part.get("restored"))
+            reduction = list(part.get("reduction") or [])
+            overall = _finite(part.get("reduction_overall"))
+            parts.append({
+                "label": label, "reason": None,
+                "tracks": (part.get("input") or {}).get("tracks"),
+                "observations": (part.get("input") or {}).get("observations"),
+                "channels": [{"channel": name, "input": inputs[i],
+                              "restored": restored[i] if i < len(restored) else (None, None),
+                              "reduction": _finite(reduction[i]) if i < len(reduction)
+                              else None} for i, name in enumerate("RGB"[:len(inputs)])],
+                "overall": overall,
+                "meets_goal": overall is not None and overall >= TRACK_SLOPE_GOAL})
+        rows.append({"dataset": record.dataset, "range_units": slope.get("range_units"),
+                     "reason": (str(slope.get("reason") or "not measured")
+                                if slope.get("source") == "none" else None),
+                     "parts": parts})
+    return rows
+
+
 def _ordered_columns(columns: Sequence[str]) -> list[str]:
     """:data:`TABLE_COLUMNS` order, each protocol's columns right after ``lpips``."""
     protocol = [c for c in columns if c not in TABLE_COLUMNS]
@@ -366,6 +448,7 @@ def summary_table(records: Sequence[DatasetRecord]) -> pd.DataFrame:
         row.update({key: means[key] for key in TABLE_COLUMNS if key in means})
         row.update(protocol_cells(summary))
         row.update(chart_cells(summary))
+        row.update(track_slope_cells(summary))
         training = summary.training if summary else None
         row["train_time_s"] = training.time_s if training else None
         row["train_steps"] = training.steps if training else None
@@ -448,6 +531,12 @@ def format_cell(value) -> str:
     return str(value)
 
 
+def format_share(value) -> str:
+    """A share as a whole percentage (``0.512`` -> ``51%``), missing values as a dash."""
+    number = _finite(value)
+    return "—" if number is None else f"{100 * number:.0f}%"
+
+
 def format_triple(values) -> str:
     if values is None:
         return "—"
@@ -460,7 +549,7 @@ def _template():
     environment = jinja2.Environment(loader=jinja2.PackageLoader("seathru.eval", "templates"),
                                      autoescape=True, undefined=jinja2.StrictUndefined,
                                      trim_blocks=True, lstrip_blocks=True)
-    environment.filters.update(cell=format_cell, triple=format_triple,
+    environment.filters.update(cell=format_cell, triple=format_triple, share=format_share,
                                base64=lambda data: base64.b64encode(data).decode("ascii"))
     return environment.get_template("report.html.j2")
 
@@ -487,8 +576,9 @@ def render_html(table: pd.DataFrame, records: Sequence[DatasetRecord],
                 fronts: Mapping[str, bytes] | None = None,
                 charts: Mapping[str, bytes] | None = None) -> str:
     """The self-contained report page: the summary table, the settings the train step chose and
-    why (:func:`settings_notes`), failures, water against the truth, colour charts, quality
-    against time, and the plots and image strips (PNG bytes) inlined.
+    why (:func:`settings_notes`), failures, water against the truth, colour charts, colour
+    along COLMAP tracks (:func:`track_slope_rows`), quality against time, and the plots and
+    image strips (PNG bytes) inlined.
 
     Args:
         table: from :func:`summary_table`; its ``chart_*`` columns are shown in the "Colour
@@ -529,5 +619,6 @@ def render_html(table: pd.DataFrame, records: Sequence[DatasetRecord],
             [None if not isinstance(v, str) and pd.isna(v) else v for v in row]
             for row in frontier.itertuples(index=False)],
         fronts=fronts or {}, protocols=protocol_notes(records), chart_rows=chart_rows(records),
-        settings_notes=settings_notes(records),
+        settings_notes=settings_notes(records), slope_rows=track_slope_rows(records),
+        slope_goal=TRACK_SLOPE_GOAL,
         chart_labels=[label for _, label in CHART_IMAGES], charts=charts or {})
