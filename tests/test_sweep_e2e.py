@@ -45,9 +45,13 @@ def test_the_sweep_run_finishes_in_its_own_folder_on_the_datasets_poses(swept):
                               weights_only=True)["config"] for run in ("sim_water",
                                                                        "sim_water+fast")}
     assert models["sim_water+fast"]["preset"] == "fast"
-    assert models["sim_water"]["preset"] == "balanced"
-    assert models["sim_water+fast"]["field"]["density_res"] != \
-        models["sim_water"]["field"]["density_res"]
+    assert models["sim_water"]["preset"] == "auto"  # the default
+    from seathru.nerf.config import TRAIN_PRESETS
+    assert models["sim_water+fast"]["field"]["density_res"] == \
+        TRAIN_PRESETS["fast"]["field"]["density_res"]
+    capacity = json.loads((results / "sim_water" / "train" / "selection.json").read_text())[
+        "capacity"]
+    assert capacity["requested"] == "auto" and capacity["chosen"] in TRAIN_PRESETS
 
 
 @pytest.mark.parametrize("run", ["sim_water", "sim_water+fast"])
