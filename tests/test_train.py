@@ -258,7 +258,7 @@ def test_train_step_leaves_denormals_as_it_found_them(default_scene, tmp_path):
     assert not _denormals_flushed()
 
 
-def test_open_water_rays_pay_for_object_opacity_while_the_water_is_on():
+def test_open_water_rays_pay_for_object_opacity_while_the_veiling_light_varies():
     import dataclasses
 
     from tests.test_nerf_prepare import _dive_image, _frames
@@ -269,7 +269,8 @@ def test_open_water_rays_pay_for_object_opacity_while_the_water_is_on():
     frames = _frames(3)
     images = [_dive_image(rng, 24)[:48, :64] for _ in frames]
     config = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0,
-                                                 "loss": {"open_water_weight": 0.5}})
+                                                 "loss": {"open_water_weight": 0.5},
+                                                 "medium": {"mode": "veiling"}})
     run = prepare_run(config, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
                       [None] * 3)
     batch = run.data.sample(512, torch.Generator().manual_seed(1))
@@ -289,8 +290,9 @@ def test_open_water_rays_pay_for_object_opacity_while_the_water_is_on():
     expected = 0.5 * float(opacity[batch.open_water].mean())
     assert expected > 1e-3
     assert loss(0.5) - loss(0.0) == pytest.approx(expected, rel=1e-3)
-    run.model.medium.set_mode("off")
-    assert loss(0.5) == pytest.approx(loss(0.0), rel=1e-6)
+    for mode in ("off", "global"):      # uniform water: a global medium leaves it empty
+        run.model.medium.set_mode(mode)
+        assert loss(0.5) == pytest.approx(loss(0.0), rel=1e-6)
 
 
 def test_colour_fading_along_tracks_is_evidence_of_water():

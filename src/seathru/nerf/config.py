@@ -142,9 +142,9 @@ class LossConfig:
     open_water_weight: float = setting(
         0.05, help="weight of the object opacity of rays whose pixel is open water (smooth, "
                    "reaching the top of the frame: seathru.radiometry.open_water), while the "
-                   "water model is on and open water is more than medium.auto_open_water_share "
-                   "of the training pixels: open water is the water's own colour, not a "
-                   "surface; 0 = off")
+                   "water's veiling light depends on direction (veiling, view) and open water "
+                   "is more than medium.auto_open_water_share of the training pixels: open "
+                   "water is the water's own colour, not a surface; 0 = off")
     distortion_weight: float = setting(0.01, help="weight of the distortion loss")
     density_tv_weight: float = setting(0.0, help="weight of total variation on the density grid")
     recon_eps: float = setting(1e-3, help="eps of the relative reconstruction loss")
