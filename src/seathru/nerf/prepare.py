@@ -13,7 +13,7 @@ from seathru.errors import PipelineError
 from seathru.nerf.capacity import choose_capacity, measure_scene, steps_for_passes
 from seathru.nerf.config import TrainConfig, resolve_batch_rays
 from seathru.nerf.model import SeaThruModel, scene_from_frames
-from seathru.nerf.rays import RayBatch, RayDataset
+from seathru.nerf.rays import RayBatch, RayDataset, frame_rays
 from seathru.radiometry.linearise import block_average
 from seathru.radiometry.open_water import open_water_mask
 
@@ -179,8 +179,6 @@ def open_water_direction_spread(frames, images, water_masks, max_pixels: int = 2
     Returns:
         the relative spread (0 when there is no open water).
     """
-    from seathru.nerf.rays import frame_rays
-
     directions, colours = [], []
     for frame, image, mask in zip(frames, images, water_masks):
         if mask is None or not mask.any():

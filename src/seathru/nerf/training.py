@@ -400,8 +400,7 @@ class Trainer:
                 self._restore(ends["off"])
                 self.model.medium.set_mode("off")
             stats.update({"trial_steps": trial, "validation_psnr_off": results["off"],
-                          "validation_psnr_water": results[water_mode],
-                          f"validation_psnr_{water_mode}": results[water_mode]})
+                          "validation_psnr_water": results[water_mode]})
             if evidence:
                 verdict = (f"kept: the images show water ({'; '.join(evidence)}) and no water "
                            f"is not better by more than {margin:g} dB ({gain:+.2f} dB for the "
