@@ -42,3 +42,13 @@ def test_masked_pixels_are_never_open_water():
 
 def test_tiny_images_have_no_open_water():
     assert not open_water_mask(np.zeros((8, 8, 3)), block=8).any()
+
+
+def test_black_sky_is_no_open_water():
+    # clear water (or air at night) leaves the region above a reef black: no veiling light
+    rng = np.random.default_rng(3)
+    image = _dive(rng, 32)
+    image[:32] = rng.normal(0.0, 1e-5, size=(32, image.shape[1], 3)).clip(0.0)
+    assert not open_water_mask(image, block=8).any()
+    image[:32] = 0.0
+    assert not open_water_mask(image, block=8).any()

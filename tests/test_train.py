@@ -315,3 +315,32 @@ def test_colour_fading_along_tracks_is_evidence_of_water():
         evidence.append(trainer.select_medium()["statistics"]["evidence_of_water"])
     assert any("COLMAP tracks" in text and "-40%" in text for text in evidence[0])
     assert not any("COLMAP tracks" in text for text in evidence[1])
+
+
+@pytest.mark.parametrize("gain_db, with_evidence, chosen", [
+    (1.7, False, "off"),      # what fern (in air) gained from a water model: not enough alone
+    (3.5, False, "global"),
+    (-0.3, True, "global"),   # with evidence, a tie keeps the water
+    (-0.8, True, "off")])
+def test_without_evidence_of_water_the_water_must_win_by_a_wide_margin(gain_db, with_evidence,
+                                                                        chosen, monkeypatch):
+    from tests.test_nerf_prepare import _dive_image, _frames
+    from seathru.io.cameras import CameraSet
+    from seathru.nerf.prepare import prepare_run
+
+    rng = np.random.default_rng(6)
+    frames = _frames(3)
+    images = [_dive_image(rng, 0)[:48, :64] for _ in frames]
+    config = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0,
+                                                 "steps": 40, "medium": {"mode": "global"}})
+    change = {"tracks": 500, "t": [-12.0, 1.0, 0.5],
+              "change_over_median_range": [-0.4, 0.02, 0.01]} if with_evidence else None
+    run = prepare_run(config, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
+                      [None] * 3, track_change=change)
+    run.model.medium.set_global([0.5] * 3, [0.5] * 3, [0.001] * 3)  # dim, but it attenuates
+    trainer = Trainer(run.model, run.data, device="cpu", frames=frames)
+    monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0 + (
+        gain_db if trainer.model.medium.mode != "off" else 0.0))
+    selection = trainer.select_medium()
+    assert bool(selection["statistics"]["evidence_of_water"]) == with_evidence
+    assert selection["chosen"] == chosen, selection["reason"]

@@ -58,7 +58,9 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
     device = torch.device(device)
     config = resolve_batch_rays(config, device.type)
     water_masks = [open_water_mask(image, valid=masks[i] if masks is not None and i < len(masks)
-                                   else None) for i, image in enumerate(images)]
+                                   else None,
+                                   min_brightness=config.medium.auto_veiling_brightness)
+                   for i, image in enumerate(images)]
     water_share = open_water_share(water_masks, masks)
     # a few smooth blocks at the top of the frames are far haze, not open water in view
     in_view = water_share > config.medium.auto_open_water_share

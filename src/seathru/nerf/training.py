@@ -300,13 +300,16 @@ class Trainer:
         batches (``auto_trial_share`` of the run each) and are compared on held-out training
         rays. The images' own evidence of water decides ties: open water in the photographs
         (smooth regions reaching the top of the frame, ``seathru.radiometry.open_water``) or in
-        the model (rays that meet no surface; both above ``auto_open_water_share``), a density
-        wall at the far bound standing in for it, the input colour changing with range along
-        the COLMAP tracks (``seathru.io.tracks.input_colour_change``), or attenuation the
-        surfaces seen over a range of distances determine (``assess_water``). With such evidence the water stays unless no
-        water is better by ``auto_margin_db``; without it, the water must be better by that
-        margin. The paper's fully view-dependent water is never picked automatically: it can
-        also absorb errors of a half-trained scene; ask for it with ``medium.mode=view``.
+        the model (rays that meet no surface; both above ``auto_open_water_share``, and only
+        where the veiling light is visible: ``auto_veiling_brightness``), a density wall at the
+        far bound standing in for it, the input colour changing with range along the COLMAP
+        tracks (``seathru.io.tracks.input_colour_change``), attenuation the surfaces seen
+        over a range of distances determine (``assess_water``), or a fitted water whose
+        backscatter is a large share of the image (``auto_backscatter_evidence``). With such evidence the water
+        stays unless no water is better by ``auto_margin_db``; without it, the water must be
+        better by ``auto_margin_no_evidence_db``. The paper's fully view-dependent water is
+        never picked automatically: it can also absorb errors of a half-trained scene; ask for
+        it with ``medium.mode=view``.
         """
         c = self.config
         rendered = self.render_batch(self.probe)
@@ -324,10 +327,16 @@ class Trainer:
         c_med = torch.tensor(water["c_med"], device=rendered["rgb"].device)
         observed = self.probe.rgb.to(c_med.device)
         matches = ((observed - c_med).abs() / c_med.clamp_min(0.02)).amax(-1) < 0.15
-        open_water = float(((rendered["opacity"] < 0.1) & matches).float().mean())
+        # black "open water" is no veiling light: clear water, air, a black background
+        visible = float(c_med.mean()) >= c.medium.auto_veiling_brightness * float(
+            observed.mean())
+        open_water = float(((rendered["opacity"] < 0.1) & matches).float().mean()) \
+            if visible else 0.0
         far = self.probe.far.to(rendered["depth_median"].device)
-        wall = float(((rendered["opacity"] > 0.5) & (rendered["depth_median"] > 0.95 * far))
-                     .float().mean())
+        walled = (rendered["opacity"] > 0.5) & (rendered["depth_median"] > 0.95 * far)
+        wall_visible = bool(walled.any()) and float(observed[walled].mean()) >= \
+            c.medium.auto_veiling_brightness * float(observed.mean())
+        wall = float(walled.float().mean()) if wall_visible else 0.0
         assessment = self.assess_water() or {}
         determined = all(assessment.get("determined", {}).get("sigma_attn", [False]))
         surface_attenuation = 1.0 - math.exp(-max(assessment.get("surface_fit", {}).get(
@@ -350,6 +359,9 @@ class Trainer:
              "(open water)"),
             (wall > c.medium.auto_open_water_share,
              f"{100 * wall:.1f}% of the rays end in a density wall at the far bound"),
+            (backscatter_share >= c.medium.auto_backscatter_evidence,
+             f"the fitted water's backscatter makes up {100 * backscatter_share:.0f}% of the "
+             "image"),
             (determined and surface_attenuation > 2 * c.medium.auto_attenuation,
              f"surfaces seen over a range of distances fade by {100 * surface_attenuation:.0f}% "
              f"over the median depth (attenuation determined)")) if present]
@@ -364,7 +376,9 @@ class Trainer:
         thresholds = {"backscatter_share": c.medium.auto_backscatter_share,
                       "attenuation_over_depth": c.medium.auto_attenuation,
                       "open_water_share": c.medium.auto_open_water_share,
-                      "margin_db": c.medium.auto_margin_db}
+                      "margin_db": c.medium.auto_margin_db,
+                      "margin_no_evidence_db": c.medium.auto_margin_no_evidence_db,
+                      "veiling_brightness": c.medium.auto_veiling_brightness}
         decided_at = {"decided_at_step": self.step, "decided_at_progress": self._progress()}
         water_mode = self.model.medium.mode   # global, or veiling where the open water asks
         if not evidence and backscatter_share < c.medium.auto_backscatter_share \
@@ -394,7 +408,8 @@ class Trainer:
                         self.step += 1
                 results[mode] = self._probe_psnr()
             gain = results[water_mode] - results["off"]
-            margin = c.medium.auto_margin_db
+            margin = c.medium.auto_margin_db if evidence \
+                else c.medium.auto_margin_no_evidence_db
             chosen = water_mode if (gain > -margin if evidence else gain > margin) else "off"
             if chosen == "off":
                 self._restore(ends["off"])

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import torch
 import torch.nn.functional as F
@@ -88,14 +89,19 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
     return SurfaceData(ranges, observed, ids, groups, dark)
 
 
-def dark_pixels(ranges: Tensor, observed: Tensor, bins: int = 10, quantile: float = 0.01,
-                min_per_bin: int = 50) -> tuple[Tensor, Tensor] | None:
+DARK_QUANTILE = 0.01
+
+
+def dark_pixels(ranges: Tensor, observed: Tensor, bins: int = 10,
+                quantile: float = DARK_QUANTILE, min_per_bin: int = 50
+                ) -> tuple[Tensor, Tensor] | None:
     """Sea-thru's dark-pixel estimate: the darkest pixels at each range bound the backscatter.
 
-    A pixel is ``J exp(-a z) + B(z)`` with ``J >= 0`` and ``B`` grows with range, so the
-    darkest pixels of a range bin are at least the backscatter at the bin's nearest range: the
-    ``quantile`` of each channel per bin bounds ``B`` there from above (nearly equal to it
-    where some surfaces are black or shadowed).
+    A noise-free pixel is ``J exp(-a z) + B(z)`` with ``J >= 0`` and ``B`` grows with range, so
+    the darkest pixels of a range bin are at least the backscatter at the bin's nearest range:
+    the ``quantile`` of each channel per bin bounds ``B`` there from above (nearly equal to it
+    where some surfaces are black or shadowed). Pixel noise puts the quantile of noisy pixels
+    below that; :func:`fit_water` raises the bound by the noise it measures.
 
     Args:
         ranges: (N,) finite ranges; observed: (N, 3) pixels.
@@ -193,6 +199,24 @@ def _inverse_softplus(value: float) -> float:
     return value + math.log(-math.expm1(-value)) if value < 20 else value
 
 
+def noise_allowance(fit: "WaterFit", ranges: Tensor, observed: Tensor, ids: Tensor,
+                    groups: int, quantile: float = DARK_QUANTILE) -> Tensor:
+    """How far below the noise-free backscatter the dark-pixel ``quantile`` of noisy pixels
+    falls: the normal quantile times the robust spread (1.4826 MAD) of each channel's residuals
+    at ``fit``. The residuals also hold texture and geometry error, so the allowance errs large
+    (a looser bound), never small (a bound below the truth biases the backscatter low).
+
+    Returns:
+        (3,) float64, to add to the dark values of :func:`dark_pixels`.
+    """
+    theta = [torch.tensor(getattr(fit, k), dtype=torch.float64, device=ranges.device)
+             for k in ("sigma_attn", "sigma_bs", "c_med")]
+    residuals = _projected_residuals(*theta, ranges.double(), observed.double(), ids, groups)[0]
+    centred = residuals - residuals.median(dim=0).values
+    spread = 1.4826 * centred.abs().median(dim=0).values
+    return NormalDist().inv_cdf(1.0 - quantile) * spread
+
+
 def dark_excess(sigma_bs: Tensor, c_med: Tensor, dark: tuple[Tensor, Tensor]) -> Tensor:
     """Mean squared excess of the modelled backscatter over the dark-pixel bound (0 if below)."""
     centres, values = dark
@@ -214,8 +238,10 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
         start: ``{"sigma_attn": [3] or float, "sigma_bs": ..., "c_med": ...}`` start values.
         steps: most loss evaluations of the optimiser.
         colour_max: ``c_med`` is kept in (0, colour_max).
-        dark: optional dark-pixel bound (:func:`dark_pixels`): backscatter above it is
-            penalised with ``dark_weight`` times its mean squared excess.
+        dark: optional dark-pixel bound (:func:`dark_pixels`): the water is first fitted
+            without it, the bound is raised by the residuals' :func:`noise_allowance`, and
+            backscatter above the raised bound is penalised with ``dark_weight`` times its
+            mean squared excess in a second fit started from the first.
 
     Returns:
         the fitted water and its loss.
@@ -225,6 +251,12 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
         ids, groups = voxel_groups(points, 0.02)
         fit = fit_water(z, rgb, ids, groups, {"sigma_attn": 0.2, "sigma_bs": 0.2, "c_med": 0.2})
     """
+    if dark is not None:
+        free = fit_water(ranges, observed, ids, groups, start, steps, colour_max)
+        allowance = noise_allowance(free, ranges, observed, ids, groups)
+        dark = (dark[0], dark[1].to(allowance) + allowance)
+        start = {k: getattr(free, k) for k in ("sigma_attn", "sigma_bs", "c_med")}
+
     def triple(value) -> list[float]:
         return [float(value)] * 3 if isinstance(value, (int, float)) else [float(v) for v in value]
 

@@ -20,7 +20,8 @@ from seathru.radiometry.linearise import block_average
 
 
 def open_water_mask(image: np.ndarray, block: int = 8, max_roughness: float = 0.08,
-                    valid: np.ndarray | None = None) -> np.ndarray:
+                    valid: np.ndarray | None = None, min_brightness: float = 0.1
+                    ) -> np.ndarray:
     """Pixels of open water: smooth blocks connected to the top edge of the frame.
 
     Args:
@@ -31,6 +32,9 @@ def open_water_mask(image: np.ndarray, block: int = 8, max_roughness: float = 0.
             this (measured on the d3_reef frames: 0.02-0.05 in open water, 0.2-1 on coral and
             sand).
         valid: ``(H, W)`` bool, pixels to use (False: masked, never open water), or None.
+        min_brightness: a block darker than this share of the frame's median block brightness
+            shows no veiling light (a black sky or background: clear water or air), so it is
+            not open water.
 
     Returns:
         ``(H, W)`` bool; pixels beyond the last whole block are False.
@@ -48,7 +52,9 @@ def open_water_mask(image: np.ndarray, block: int = 8, max_roughness: float = 0.
     # the last row / column compares with itself: only its other neighbour counts
     dx = np.abs(np.diff(small, axis=1, append=small[:, -1:])).sum(-1)
     dy = np.abs(np.diff(small, axis=0, append=small[-1:])).sum(-1)
-    smooth = (dx + dy) / (small.sum(-1) + 1e-4) < max_roughness
+    brightness = small.sum(-1)
+    smooth = (dx + dy) / (brightness + 1e-4) < max_roughness
+    smooth &= brightness >= min_brightness * np.median(brightness)
     if valid is not None:
         smooth &= block_average(np.asarray(valid, dtype=np.float64), block) >= 1.0
     labels, _ = ndimage.label(smooth)
