@@ -83,9 +83,13 @@ def test_open_water_pixels_reach_the_rays_and_the_scene():
         float(flags.double().mean()), abs=1e-9)
     batch = run.data.sample(64, torch.Generator().manual_seed(0))
     assert batch.open_water is not None and batch.open_water.shape == (64,)
+    # the water refits use the flags too, with or without the open-water loss
     off = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0,
                                               "loss": {"open_water_weight": 0.0}})
     assert prepare_run(off, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
+                       masks).data.rays.open_water is not None
+    reef = [_dive_image(rng, 0)[:48, :64] for _ in frames]            # no open water in view
+    assert prepare_run(off, CameraSet(frames=frames, near=0.1, far=4.0), frames, reef,
                        masks).data.rays.open_water is None
 
 

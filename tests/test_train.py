@@ -344,3 +344,20 @@ def test_without_evidence_of_water_the_water_must_win_by_a_wide_margin(gain_db, 
     selection = trainer.select_medium()
     assert bool(selection["statistics"]["evidence_of_water"]) == with_evidence
     assert selection["chosen"] == chosen, selection["reason"]
+
+
+@pytest.mark.parametrize("hold", [True, False])
+def test_water_a_refit_determined_is_held_there(default_scene, hold):
+    trainer = _small_trainer(default_scene, medium={"mode": "global", "hold_refitted": hold})
+    trainer.model.medium.set_global([0.4, 0.3, 0.2], [0.3, 0.3, 0.3], [0.1, 0.2, 0.3])
+    accepted = {"sigma_attn": [True, True, False], "sigma_bs": [False] * 3,
+                "c_med": [True] * 3}
+    trainer.water_refits.append({"step": 0, "accepted": accepted})
+    before = trainer.model.water_parameters()
+    for _ in range(5):
+        trainer._optimise_once()
+    after = trainer.model.water_parameters()
+    for key, flags in accepted.items():
+        for channel, held in enumerate(flags):
+            moved = after[key][channel] != pytest.approx(before[key][channel], abs=1e-6)
+            assert moved == (not held or not hold), (key, channel)

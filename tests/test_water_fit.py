@@ -107,6 +107,17 @@ def test_surface_data_keeps_surfaces_seen_over_a_range_and_adds_open_water():
     assert not isinstance(data, str)
     assert int(torch.isinf(data.ranges).sum()) == 300
     assert data.groups == int(data.ids.max()) + 1
+    # the photographs' open water wins over the model's opacity: a floater in the open water
+    # is still open water, an empty ray elsewhere (a hole) is neither water nor surface
+    photo = torch.zeros(count, dtype=torch.bool)
+    photo[200:400] = True
+    by_photo = surface_data(origins, directions, rgb, depth, opacity, voxel=100.0,
+                            min_pixels=10, open_water_opacity=0.1, open_water=photo)
+    assert int(torch.isinf(by_photo.ranges).sum()) == 200
+    assert len(by_photo.ranges) == count - 300 + 200 - 100   # holes 0-199 out, 200-399 water
+    unused = surface_data(origins, directions, rgb, depth, opacity, voxel=100.0,
+                          min_pixels=10, open_water_opacity=0.0, open_water=photo)
+    assert not bool(torch.isinf(unused.ranges).any())
     too_few = surface_data(origins, directions, rgb, depth, opacity * 0.5, voxel=1.0)
     assert isinstance(too_few, str) and "opaque" in too_few
 

@@ -89,17 +89,24 @@ class MediumConfig:
         default_factory=lambda: [0.15, 0.4],
         help="training progress at which the water is refitted to the images on the model's "
              "own depth (variable projection); empty = never")
+    hold_refitted: bool = setting(
+        True, help="water values a refit determined are held there for the rest of the run "
+                   "(trained on, they drift as fog in the object field stands in for the "
+                   "water); false = they train on from the refitted value")
     refit_rays: int = setting(65536, help="training rays rendered for a water refit")
     refit_opacity: float = setting(0.9, help="a refit uses rays whose object opacity exceeds "
                                              "this (surfaces, not fog or open water)")
     refit_voxel: float = setting(0.005, help="refit: surface points are grouped in voxels of "
                                              "this share of the scene box diagonal")
-    open_water_opacity: float = setting(0.1, help="rays below this object opacity meet no "
-                                                  "surface: their pixel is the veiling light "
-                                                  "(0 = do not use open water)")
-    open_water_from: float = setting(0.3, help="progress from which refits use open-water rays "
-                                               "(earlier, unfinished surfaces are transparent "
-                                               "too)")
+    open_water_opacity: float = setting(
+        0.1, help="rays below this object opacity meet no surface: their pixel is the veiling "
+                  "light; with open water in the photographs (seathru.radiometry.open_water), "
+                  "the rays they show as open water are taken instead, whatever the model's "
+                  "opacity (0 = do not use open water)")
+    open_water_from: float = setting(
+        0.3, help="progress from which refits take the model's empty rays as open water "
+                  "(earlier, unfinished surfaces are transparent too); the photographs' open "
+                  "water is used from the first refit")
     dark_pixel_bound: bool = setting(True, help="refits keep the backscatter below the darkest "
                                                 "pixels at each range (Sea-thru's dark-pixel "
                                                 "estimate)")

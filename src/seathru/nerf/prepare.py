@@ -65,8 +65,7 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
     # a few smooth blocks at the top of the frames are far haze, not open water in view
     in_view = water_share > config.medium.auto_open_water_share
     data = RayDataset(train_frames, images, masks, device=device,
-                      open_water=water_masks if config.loss.open_water_weight > 0 and in_view
-                      else None)
+                      open_water=water_masks if in_view else None)
     if len(data) == 0:
         raise PipelineError("the training images have no valid pixel (check the masks)")
     if data.dropped_nonfinite:

@@ -50,7 +50,8 @@ class SurfaceData:
 
 def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor,
                  opacity: Tensor, voxel: float, min_opacity: float = 0.9,
-                 min_pixels: int = 1000, open_water_opacity: float = 0.0) -> SurfaceData | str:
+                 min_pixels: int = 1000, open_water_opacity: float = 0.0,
+                 open_water: Tensor | None = None) -> SurfaceData | str:
     """The pixels a water fit can use, from rays rendered by the model.
 
     Args:
@@ -63,11 +64,19 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
             the veiling light ``c_med`` itself (range inf, one group of their own), which pins
             ``c_med`` and with it the backscatter. 0 leaves them out (use it only once the
             geometry has converged: an unfinished surface is transparent too).
+        open_water: (R,) bool or None: the rays whose pixel the photographs show as open water
+            (``seathru.radiometry.open_water``). Where given, these are the open-water rays
+            whatever the model's opacity (a half-trained model fills open water with floaters
+            and leaves dark holes elsewhere, and either pulls ``c_med`` away: on the survey demo
+            0.4% of such rays, wrongly taken as open water, put ``c_med`` 30% low), and they
+            are never surfaces; they are used whenever ``open_water_opacity`` is above 0.
 
     Returns:
         the data, or a sentence saying why there is not enough of it.
     """
     keep = (opacity > min_opacity) & torch.isfinite(depth)
+    if open_water is not None:
+        keep &= ~open_water
     if int(keep.sum()) < min_pixels:
         return f"only {int(keep.sum())} rays reach opaque surfaces"
     points = (origins[keep] + directions[keep] * depth[keep, None]).double().cpu()
@@ -79,7 +88,10 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
     dark = dark_pixels(ranges, observed)
     ids, groups = voxel_groups(points[ranged], voxel)
     ranges, observed = ranges[ranged], observed[ranged]
-    water = opacity < open_water_opacity
+    if open_water is None:
+        water = opacity < open_water_opacity
+    else:
+        water = open_water if open_water_opacity > 0 else torch.zeros_like(open_water)
     if bool(water.any()):
         ranges = torch.cat([ranges, torch.full((int(water.sum()),), math.inf,
                                                dtype=ranges.dtype)])
