@@ -352,7 +352,13 @@ def test_water_a_refit_determined_is_held_there(default_scene, hold):
     trainer.model.medium.set_global([0.4, 0.3, 0.2], [0.3, 0.3, 0.3], [0.1, 0.2, 0.3])
     accepted = {"sigma_attn": [True, True, False], "sigma_bs": [False] * 3,
                 "c_med": [True] * 3}
-    trainer.water_refits.append({"step": 0, "accepted": accepted})
+    after = {k: trainer.model.water_parameters()[k] for k in accepted}
+    halfwidth = {k: [0.1 * abs(v) for v in values] for k, values in after.items()}
+    halfwidth["sigma_bs"][0] = 0.5 * after["sigma_bs"][0]      # accepted, but loosely
+    accepted["sigma_bs"][0] = True
+    trainer.water_refits.append({"step": 0, "accepted": accepted, "after": after,
+                                 "halfwidth95": halfwidth})
+    accepted = {**accepted, "sigma_bs": [False] * 3}            # what is held
     before = trainer.model.water_parameters()
     for _ in range(5):
         trainer._optimise_once()

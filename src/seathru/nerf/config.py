@@ -93,6 +93,9 @@ class MediumConfig:
         True, help="water values a refit determined are held there for the rest of the run "
                    "(trained on, they drift as fog in the object field stands in for the "
                    "water); false = they train on from the refitted value")
+    hold_max_relative: float = setting(
+        0.25, help="a refitted value is held only if its 95% half-width is below this share of "
+                   "it (a loosely determined value trains on with the geometry)")
     refit_rays: int = setting(65536, help="training rays rendered for a water refit")
     refit_opacity: float = setting(0.9, help="a refit uses rays whose object opacity exceeds "
                                              "this (surfaces, not fog or open water)")

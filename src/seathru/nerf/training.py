@@ -154,7 +154,8 @@ class Trainer:
             param.grad.mul_(self._seen_cache[shape])
 
     def _hold_refitted_water(self) -> None:
-        """Zero the gradient of the water values a refit determined (``medium.hold_refitted``).
+        """Zero the gradient of the water values the latest refit determined to within
+        ``medium.hold_max_relative`` (``medium.hold_refitted``).
 
         Trained on through the NeRF, the water drifts from its surface fit as fog in the object
         field stands in for it (on the survey demo, attenuation from within 3% of the truth at
@@ -165,9 +166,12 @@ class Trainer:
             return
         medium = self.model.medium
         held = {k: [False] * 3 for k in WATER_KEYS}
-        for record in self.water_refits:
-            for key, flags in (record.get("accepted") or {}).items():
-                held[key] = [a or b for a, b in zip(held[key], flags)]
+        fitted = [r for r in self.water_refits if r.get("accepted")]
+        if fitted:   # the latest refit's values, where its 95% half-width is tight
+            last, limit = fitted[-1], self.config.medium.hold_max_relative
+            for key in WATER_KEYS:
+                held[key] = [bool(ok and half <= limit * abs(value)) for ok, half, value in zip(
+                    last["accepted"][key], last["halfwidth95"][key], last["after"][key])]
         if medium.mode == "veiling":
             held["c_med"] = [False] * 3
         for key, param in zip(WATER_KEYS, medium.global_parameters()):
