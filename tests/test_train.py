@@ -367,3 +367,28 @@ def test_water_a_refit_determined_is_held_there(default_scene, hold):
         for channel, held in enumerate(flags):
             moved = after[key][channel] != pytest.approx(before[key][channel], abs=1e-6)
             assert moved == (not held or not hold), (key, channel)
+
+
+@pytest.mark.parametrize("surface_attn, evidence", [(0.0, False), (2.0, True)])
+def test_surfaces_that_fade_with_range_are_evidence_even_when_not_determined(
+        surface_attn, evidence, monkeypatch):
+    # fern's own surfaces fit no attenuation; a simulated orbit's faded by 57-67%
+    from tests.test_nerf_prepare import _dive_image, _frames
+    from seathru.io.cameras import CameraSet
+    from seathru.nerf.prepare import prepare_run
+
+    rng = np.random.default_rng(6)
+    frames = _frames(3)
+    images = [_dive_image(rng, 0)[:48, :64] for _ in frames]
+    config = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0,
+                                                 "steps": 40, "medium": {"mode": "global"}})
+    run = prepare_run(config, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
+                      [None] * 3)
+    run.model.medium.set_global([0.5] * 3, [0.5] * 3, [0.001] * 3)
+    trainer = Trainer(run.model, run.data, device="cpu", frames=frames)
+    monkeypatch.setattr(trainer, "assess_water", lambda: {
+        "surface_fit": {"sigma_attn": [surface_attn] * 3},
+        "determined": {"sigma_attn": [False] * 3}})
+    monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0)
+    found = trainer.select_medium()["statistics"]["evidence_of_water"]
+    assert any("surfaces seen over a range" in text for text in found) == evidence, found

@@ -131,6 +131,11 @@ class MediumConfig:
         0.2, help="auto: a fitted water whose backscatter makes up this share of the image is "
                   "evidence of water (a scattering medium; 62% on the survey demo, 8% for the "
                   "water model fern, in air, trained)")
+    auto_surface_fading: float = setting(
+        0.25, help="auto: a water fit on the model's own surfaces (independent of the trained "
+                   "water) whose attenuation fades the colour by this share over the median "
+                   "depth is evidence of water even when not determined (measured: 57-92% on "
+                   "simulated orbits and transects, 0-8% on fern and clear water)")
     auto_veiling_brightness: float = setting(
         0.1, help="auto: open water is evidence of water only where it is at least this share "
                   "of the images' brightness (black open water shows no veiling light: clear "

@@ -387,9 +387,11 @@ class Trainer:
             (backscatter_share >= c.medium.auto_backscatter_evidence,
              f"the fitted water's backscatter makes up {100 * backscatter_share:.0f}% of the "
              "image"),
-            (determined and surface_attenuation > 2 * c.medium.auto_attenuation,
+            ((determined or surface_attenuation >= c.medium.auto_surface_fading)
+             and surface_attenuation > 2 * c.medium.auto_attenuation,
              f"surfaces seen over a range of distances fade by {100 * surface_attenuation:.0f}% "
-             f"over the median depth (attenuation determined)")) if present]
+             "over the median depth" + (" (attenuation determined)" if determined else ""))
+        ) if present]
         stats = {"backscatter_share": backscatter_share, "attenuation_over_depth": attenuation,
                  "scene_depth_median": depth, "object_hit_share": float(hit.float().mean()),
                  "open_water_share": open_water, "open_water_image_share": image_water,
