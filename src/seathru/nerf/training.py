@@ -112,6 +112,7 @@ class Trainer:
         self.log: list[dict] = []
         self.selection: dict | None = None
         self.water_refits: list[dict] = []
+        self._held_water: tuple | None = None   # ((refits, mode), flags): _hold_refitted_water
         if self.config.medium.mode != "auto":
             self.selection = {"requested": self.config.medium.mode, "chosen": self.config.medium.mode,
                               "reason": "set explicitly (medium.mode)"}
@@ -165,18 +166,27 @@ class Trainer:
         if not self.config.medium.hold_refitted:
             return
         medium = self.model.medium
-        held = {k: [False] * 3 for k in WATER_KEYS}
+        key = (len(self.water_refits), medium.mode)
+        if self._held_water is None or self._held_water[0] != key:
+            self._held_water = (key, self._held_water_flags(medium.mode))
+        for param, flags in zip(medium.global_parameters(), self._held_water[1]):
+            if param.grad is not None and flags is not None:
+                param.grad[flags.to(param.grad.device)] = 0.0
+
+    def _held_water_flags(self, mode: str) -> list[torch.Tensor | None]:
+        """Per water key, (3,) bool of the values held (None: none), from the latest refit."""
         fitted = [r for r in self.water_refits if r.get("accepted")]
-        if fitted:   # the latest refit's values, where its 95% half-width is tight
-            last, limit = fitted[-1], self.config.medium.hold_max_relative
-            for key in WATER_KEYS:
-                held[key] = [bool(ok and half <= limit * abs(value)) for ok, half, value in zip(
-                    last["accepted"][key], last["halfwidth95"][key], last["after"][key])]
-        if medium.mode == "veiling":
-            held["c_med"] = [False] * 3
-        for key, param in zip(WATER_KEYS, medium.global_parameters()):
-            if param.grad is not None and any(held[key]):
-                param.grad[torch.tensor(held[key], device=param.grad.device)] = 0.0
+        if not fitted:
+            return [None] * len(WATER_KEYS)
+        last, limit = fitted[-1], self.config.medium.hold_max_relative
+        flags = []
+        for key in WATER_KEYS:
+            held = [bool(ok and half <= limit * abs(value)) for ok, half, value in zip(
+                last["accepted"][key], last["halfwidth95"][key], last["after"][key])]
+            if key == "c_med" and mode == "veiling":
+                held = [False] * 3
+            flags.append(torch.tensor(held) if any(held) else None)
+        return flags
 
     # -------------------------------------------------------------------- optimiser
     def _groups(self) -> list[dict]:
@@ -330,11 +340,11 @@ class Trainer:
         far bound standing in for it, the input colour changing with range along the COLMAP
         tracks (``seathru.io.tracks.input_colour_change``), attenuation the surfaces seen
         over a range of distances determine (``assess_water``), or a fitted water whose
-        backscatter is a large share of the image (``auto_backscatter_evidence``). With such evidence the water
-        stays unless no water is better by ``auto_margin_db``; without it, the water must be
-        better by ``auto_margin_no_evidence_db``. The paper's fully view-dependent water is
-        never picked automatically: it can also absorb errors of a half-trained scene; ask for
-        it with ``medium.mode=view``.
+        backscatter is a large share of the image (``auto_backscatter_evidence``). With such
+        evidence the water stays unless no water is better by ``auto_margin_db``; without it,
+        the water must be better by ``auto_margin_no_evidence_db``. The paper's fully
+        view-dependent water is never picked automatically: it can also absorb errors of a
+        half-trained scene; ask for it with ``medium.mode=view``.
         """
         c = self.config
         rendered = self.render_batch(self.probe)
@@ -353,15 +363,16 @@ class Trainer:
         observed = self.probe.rgb.to(c_med.device)
         matches = ((observed - c_med).abs() / c_med.clamp_min(0.02)).amax(-1) < 0.15
         # black "open water" is no veiling light: clear water, air, a black background
-        visible = float(c_med.mean()) >= c.medium.auto_veiling_brightness * float(
-            observed.mean())
+        def visible(colour: torch.Tensor) -> bool:
+            return float(colour.mean()) >= c.medium.auto_veiling_brightness * float(
+                observed.mean())
+
         open_water = float(((rendered["opacity"] < 0.1) & matches).float().mean()) \
-            if visible else 0.0
+            if visible(c_med) else 0.0
         far = self.probe.far.to(rendered["depth_median"].device)
         walled = (rendered["opacity"] > 0.5) & (rendered["depth_median"] > 0.95 * far)
-        wall_visible = bool(walled.any()) and float(observed[walled].mean()) >= \
-            c.medium.auto_veiling_brightness * float(observed.mean())
-        wall = float(walled.float().mean()) if wall_visible else 0.0
+        wall = float(walled.float().mean()) \
+            if bool(walled.any()) and visible(observed[walled]) else 0.0
         assessment = self.assess_water() or {}
         determined = all(assessment.get("determined", {}).get("sigma_attn", [False]))
         surface_attenuation = 1.0 - math.exp(-max(assessment.get("surface_fit", {}).get(

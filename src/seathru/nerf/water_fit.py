@@ -68,7 +68,7 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
             (``seathru.radiometry.open_water``). Where given, these are the open-water rays
             whatever the model's opacity (a half-trained model fills open water with floaters
             and leaves dark holes elsewhere, and either pulls ``c_med`` away: on the survey demo
-            0.4% of such rays, wrongly taken as open water, put ``c_med`` 30% low), and they
+            0.4% of such rays, wrongly taken as open water, put ``c_med`` 27-37% low), and they
             are never surfaces; they are used whenever ``open_water_opacity`` is above 0.
 
     Returns:
