@@ -115,9 +115,9 @@ def measure(sim: Path, out: Path) -> dict:
 
 def _robust(record: dict, key: str, channel: int, scale: float, truth: float) -> dict:
     """The robust interval of one parameter, per source unit, around the trained value."""
-    if "skipped" in record:
-        return {"robust_interval": None, "robust_contains_truth": None,
-                "robust_determined": None}
+    if "skipped" in record:     # no surfaces to fit on: open, as water.json writes it
+        return {"robust_interval": [0.0, None], "robust_contains_truth": True,
+                "robust_determined": False}
     factor = scale if key != "c_med" else 1.0
     trained, fit = record["trained"][key][channel], record["surface_fit"][key][channel]
     half = record["robust"][key][channel] + abs(trained - fit)

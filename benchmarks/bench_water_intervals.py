@@ -106,12 +106,14 @@ def synthetic_check(seeds: int) -> list[dict]:
 
 def model_surfaces(sim: Path, train: Path):
     """The surface data of a trained model as its final water assessment builds it (all
-    training rays, not less the medium-selection hold-out), its model and the truth (in
+    training rays, not less the medium-selection hold-out; open water from the photographs
+    where in view), its model and the truth (in
     normalised units). Returns (data or reason, model, truth, trained water, scale)."""
     from seathru.io.cameras import read_cameras
     from seathru.io.model import load_model
     from seathru.io.training import read_frame_images
     from seathru.io.water import read_truth_water, read_water
+    from seathru.nerf.prepare import open_water_in_view
     from seathru.nerf.rays import RayDataset
     from seathru.nerf.water_fit import surface_data
 
@@ -119,8 +121,10 @@ def model_surfaces(sim: Path, train: Path):
     config = model.config
     cameras = read_cameras(sim / "truth" / "cameras.json")
     frames = cameras.split("train")
-    rays = RayDataset(frames, *read_frame_images(cameras, frames)).fixed_subset(
-        config.medium.refit_rays, config.seed + 97)
+    images, masks = read_frame_images(cameras, frames)
+    water_masks, _, in_view = open_water_in_view(config, images, masks)
+    rays = RayDataset(frames, images, masks, open_water=water_masks if in_view else None
+                      ).fixed_subset(config.medium.refit_rays, config.seed + 97)
     depth, opacity = [], []
     with torch.no_grad():
         for start in range(0, len(rays), 8192):
@@ -132,7 +136,9 @@ def model_surfaces(sim: Path, train: Path):
     data = surface_data(rays.origins, rays.directions, rays.rgb, torch.cat(depth),
                         torch.cat(opacity), config.medium.refit_voxel * diagonal,
                         config.medium.refit_opacity,
-                        open_water_opacity=config.medium.open_water_opacity)
+                        open_water_opacity=config.medium.open_water_opacity
+                        if in_view or config.medium.open_water_from <= 1.0 else 0.0,
+                        open_water=rays.open_water)
     report = read_water(train / "water.json")
     truth = read_truth_water(sim / "truth" / "water.json").scaled(1 / report.scale).as_dict()
     return data, model, truth, report.normalised.as_dict(), report.scale

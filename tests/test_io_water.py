@@ -104,3 +104,18 @@ def test_truth_water_as_the_simulator_writes_it(tmp_path):
         read_truth_water(path)
     with pytest.raises(PipelineError, match="simulate"):
         read_truth_water(tmp_path / "none.json")
+
+
+def test_water_that_could_not_be_checked_is_flagged_with_open_intervals(tmp_path):
+    reason = "only 0 rays reach opaque surfaces"
+    report = WaterReport.from_parameters(GLOBAL_PARAMS, 0.5, {"skipped": reason})
+    assert len(report.undetermined) == 9
+    assert reason in report.undetermined_message()
+    data = report.to_dict()
+    assert data["uncertainty"]["not_assessed"] == reason
+    assert all(pair == [0.0, None] for pair in data["uncertainty"]["interval95"]["sigma_attn"])
+    write_water(tmp_path / "water.json", report)
+    assert read_water(tmp_path / "water.json") == report
+    # no water, nothing to flag
+    assert WaterReport.from_parameters({**GLOBAL_PARAMS, "mode": "off"}, 0.5,
+                                       {"skipped": reason}).uncertainty is None

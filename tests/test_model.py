@@ -431,3 +431,59 @@ def test_auto_starts_veiling_only_where_the_open_water_changes_with_direction():
     assert initial_medium_mode(config, {}) == "global"
     fixed = typed.from_mapping(TrainConfig, {"medium": {"mode": "global"}})
     assert initial_medium_mode(fixed, {"open_water_direction_spread": 1.0}) == "global"
+
+
+def test_view_dependent_colour_starts_from_the_view_independent_colours():
+    from seathru.nerf.fields import ColourDecoder
+
+    torch.manual_seed(0)
+    features = torch.randn(64, 12)
+    dirs = torch.nn.functional.normalize(torch.randn(64, 3), dim=-1)
+    auto = ColourDecoder(12, 8, "auto", 1.5)
+    assert auto.uses_view          # auto trains with the direction until it is decided
+    start = auto(features, dirs)
+    auto.set_view_enabled(False)
+    assert torch.equal(auto(features, dirs), start)     # zero view weights: same colours
+    with torch.no_grad():
+        auto.view.weight.normal_()
+    assert torch.equal(auto(features, dirs), start)     # switched off: the direction is ignored
+    auto.set_view_enabled(True)
+    assert not torch.allclose(auto(features, dirs), start)
+    with pytest.raises(ValueError, match="auto"):
+        ColourDecoder(12, 8, "on", 1.5).set_view_enabled(False)
+    assert not ColourDecoder(12, 8, "off", 1.5).uses_view
+
+
+@pytest.mark.parametrize("chosen", [True, False])
+def test_the_view_decision_survives_a_weights_only_round_trip(chosen):
+    model = SeaThruModel(TrainConfig.from_dict(SMALL), scene_dict())
+    assert model.config.field.view_dependent_colour == "auto"
+    with torch.no_grad():
+        model.field.decoder.view.weight.normal_()
+    model.field.decoder.set_view_enabled(chosen)
+    buffer = io.BytesIO()
+    torch.save(model.export(), buffer)
+    buffer.seek(0)
+    loaded = SeaThruModel.from_checkpoint(torch.load(buffer, weights_only=True))
+    assert loaded.field.uses_view is chosen
+    model.eval()
+    rays = random_rays()
+    with torch.no_grad():
+        assert torch.equal(model(*rays).render.rgb, loaded(*rays).render.rgb)
+
+
+def test_models_saved_with_the_view_weights_in_the_first_layer_still_load():
+    model = SeaThruModel(TrainConfig.from_dict({**SMALL, "view_dependent_colour": True}),
+                         scene_dict())
+    with torch.no_grad():
+        model.field.decoder.view.weight.normal_()
+    exported = model.export()
+    state = dict(exported["state_dict"])
+    # the layout before the decoder's separate view layer: features then SH in one matrix
+    state["field.decoder.net.0.weight"] = torch.cat(
+        [state["field.decoder.net.0.weight"], state.pop("field.decoder.view.weight")], dim=1)
+    loaded = SeaThruModel.from_checkpoint({**exported, "state_dict": state})
+    model.eval()
+    rays = random_rays()
+    with torch.no_grad():
+        assert torch.equal(model(*rays).render.rgb, loaded(*rays).render.rgb)

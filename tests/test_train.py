@@ -392,3 +392,28 @@ def test_surfaces_that_fade_with_range_are_evidence_even_when_not_determined(
     monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0)
     found = trainer.select_medium()["statistics"]["evidence_of_water"]
     assert any("surfaces seen over a range" in text for text in found) == evidence, found
+
+
+@pytest.mark.parametrize("tint, chosen", [(0.0, "off"), (0.6, "on")])
+def test_view_dependent_colour_is_kept_only_where_the_colour_changes_with_direction(
+        default_scene, tint, chosen):
+    # the simulated reef is Lambertian; the tint makes every surface brighter seen towards +x
+    trainer = _small_trainer(default_scene, steps=300,
+                             field={**FAST["field"], "view_trial_share": 0.2})
+    for rays in (trainer.data.rays, trainer.probe):
+        rays.rgb = rays.rgb * (1 + tint * rays.directions[:, :1])
+    trainer.run()
+    selection = trainer.view_selection
+    assert selection["chosen"] == chosen, selection["reason"]
+    assert selection["decided_at_step"] == 90 and selection["trial_steps"] == 60
+    assert trainer.model.field.uses_view is (chosen == "on")
+    gain = selection["validation_psnr_on"] - selection["validation_psnr_off"]
+    assert (gain > 0.5) if chosen == "on" else (abs(gain) < 0.2)
+
+
+def test_explicit_view_dependence_runs_no_trial(default_scene):
+    trainer = _small_trainer(default_scene, steps=120,
+                             field={**FAST["field"], "view_dependent_colour": "off"})
+    trainer.run()
+    assert trainer.view_selection["chosen"] == "off"
+    assert "trial_steps" not in trainer.view_selection and not trainer.model.field.uses_view

@@ -273,3 +273,23 @@ def test_robust_intervals_widen_where_parts_of_the_data_disagree():
         for half, stat, sys in zip(spread.halfwidth[k], spread.statistical[k],
                                    spread.systematic[k]):
             assert half == pytest.approx(float(np.hypot(stat, sys)), rel=1e-9)
+
+
+def test_surfaces_inside_the_open_water_mask_do_not_pull_the_veiling_light():
+    from seathru.nerf.water_fit import typical_open_water
+
+    rng = np.random.default_rng(6)
+    c_med = torch.tensor(TRUE["c_med"], dtype=torch.float64)
+    water = c_med * (1 + 0.003 * torch.from_numpy(rng.standard_normal((800, 3))))
+    # smooth sand and the hazy far seabed join the mask: darker than the water by 5-40%
+    surfaces = c_med * torch.from_numpy(rng.uniform(0.6, 0.95, (160, 1)))
+    rgb = torch.cat([water, surfaces, torch.rand(40, 3, dtype=torch.float64)])
+    flagged = torch.ones(len(rgb), dtype=torch.bool)
+    flagged[-40:] = False                                   # not in the mask at all
+    typical = typical_open_water(rgb, flagged)
+    assert bool(typical[:800].all()) and not bool(typical[800:].any())
+    assert torch.allclose(rgb[typical].mean(0), c_med, rtol=2e-3)
+    assert not torch.allclose(rgb[flagged].mean(0), c_med, rtol=2e-2)   # the bias it removes
+    # a veiling light that changes with direction is kept whole
+    varying = c_med * torch.from_numpy(rng.uniform(0.7, 1.3, (500, 1)))
+    assert bool(typical_open_water(varying, torch.ones(500, dtype=torch.bool)).all())

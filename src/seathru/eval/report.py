@@ -205,7 +205,8 @@ def settings_notes(records: Sequence[DatasetRecord]) -> list[dict]:
     """Per run with a recorded choice (the page's "Settings chosen"): ``dataset``,
     ``capacity`` (:func:`capacity_level`), ``capacity_reason``, ``kept_explicit`` (settings
     ``auto`` left as they were set), ``medium`` (:func:`medium_name`), ``medium_requested`` and
-    ``medium_reason``; None where not recorded."""
+    ``medium_reason``, ``view_colour`` (on or off) and ``view_colour_reason``; None where not
+    recorded."""
     notes = []
     for record in records:
         selection, capacity = run_selection(record), _capacity_record(record)
@@ -222,8 +223,16 @@ def settings_notes(records: Sequence[DatasetRecord]) -> list[dict]:
                       "kept_explicit": [str(k) for k in kept] if isinstance(kept, list) else [],
                       "medium": medium_name(selection),
                       "medium_requested": (selection or {}).get("requested"),
-                      "medium_reason": (selection or {}).get("reason")})
+                      "medium_reason": (selection or {}).get("reason"),
+                      **_view_colour_note(selection)})
     return notes
+
+
+def _view_colour_note(selection: dict | None) -> dict:
+    view = (selection or {}).get("view_dependent_colour")
+    if not isinstance(view, dict) or "chosen" not in view:
+        return {"view_colour": None, "view_colour_reason": None}
+    return {"view_colour": str(view["chosen"]), "view_colour_reason": view.get("reason")}
 
 
 def stopped_by(lines: Sequence[str]) -> str | None:

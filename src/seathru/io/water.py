@@ -21,7 +21,9 @@ With a global medium, ``uncertainty`` says how well the views determine each num
                      "determined": {"sigma_attn": [bool x 3], ...},   # half-width <= 25%
                      "surface_fit": {...},       # the water fit on the model's own surfaces
                      "normalised": {"halfwidth95": {...}, "surface_fit": {...}},
-                     "pixels": int, "groups": int}
+                     "pixels": int, "groups": int,
+                     "not_assessed": "..."}      # only where there were no surfaces to fit
+                                                 # on: every interval open, nothing determined
 
 (per-source units like the top level; ``hi`` is null where the views do not bound it).
 
@@ -131,7 +133,17 @@ class WaterReport:
             bounds = {f"normalised_{b}": WaterValues.from_mapping(params[b], b)
                       for b in ("min", "max")}
         uncertainty = None
-        if assessment and "halfwidth95" in assessment:
+        if assessment and "skipped" in assessment and params["mode"] in ("global", "veiling"):
+            # no surfaces to check the water on (turbid water hiding them, an unconverged
+            # model): nothing is known to be determined, and saying so is the honest answer
+            trained = WaterValues.from_mapping(params, "parameters").as_dict()
+            uncertainty = {"halfwidth95": {k: [math.inf] * 3 for k in WATER_KEYS},
+                           "determined": {k: [False] * 3 for k in WATER_KEYS},
+                           "surface_fit": {k: [float(v) for v in trained[k]]
+                                           for k in WATER_KEYS},
+                           "pixels": 0, "groups": 0,
+                           "not_assessed": str(assessment["skipped"])}
+        elif assessment and "halfwidth95" in assessment:
             uncertainty = {"halfwidth95": {k: [float(v) for v in assessment["halfwidth95"][k]]
                                            for k in WATER_KEYS},
                            "determined": {k: [bool(v) for v in assessment["determined"][k]]
@@ -187,7 +199,20 @@ class WaterReport:
                                                    for v in u["halfwidth95"][k]]
                                                for k in WATER_KEYS},
                                "surface_fit": u["surface_fit"]},
-                "pixels": u["pixels"], "groups": u["groups"]}
+                "pixels": u["pixels"], "groups": u["groups"],
+                **({"not_assessed": u["not_assessed"]} if u.get("not_assessed") else {})}
+
+    def undetermined_message(self) -> str | None:
+        """What the train step warns about the water the views do not determine, or None."""
+        if not self.undetermined:
+            return None
+        not_assessed = (self.uncertainty or {}).get("not_assessed")
+        if not_assessed:
+            return (f"the water could not be checked on the model's own surfaces "
+                    f"({not_assessed}): none of its values is known to be determined by the "
+                    "views, and the restored images rest on them")
+        return (f"the views do not determine {', '.join(self.undetermined)} of the water (95% "
+                "interval wider than +-25%): the restored images rest on them")
 
     @property
     def undetermined(self) -> list[str]:
@@ -225,6 +250,8 @@ class WaterReport:
                     "surface_fit": {k: [float(v) for v in u["normalised"]["surface_fit"][k]]
                                     for k in WATER_KEYS},
                     "pixels": int(u["pixels"]), "groups": int(u["groups"])}
+                if u.get("not_assessed"):
+                    uncertainty["not_assessed"] = str(u["not_assessed"])
             return cls(mode=mode, scale=float(scale),
                        normalised=WaterValues.from_mapping(data.get("normalised"), "normalised"),
                        **bounds, uncertainty=uncertainty)

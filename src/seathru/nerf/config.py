@@ -32,7 +32,17 @@ class FieldConfig:
     density_coarse_res: int = setting(32, help="resolution of the coarse density level")
     plane_channels: int = setting(8, help="feature channels per tri-plane")
     decoder_hidden: int = setting(32, help="width of the colour decoder")
-    view_dependent_colour: bool = setting(False, help="object colour depends on view direction")
+    view_dependent_colour: Literal["auto", "on", "off"] = setting(
+        "auto", help="object colour depends on view direction: on, off, or auto (grid field: "
+                     "trained with it until field.view_select_at, then kept only if a trial "
+                     "with it does better than one without on held-out training rays by "
+                     "field.view_margin_db; the MLP field: on)")
+    view_select_at: float = setting(0.3, help="auto: progress at which view-dependent colour "
+                                              "is decided")
+    view_trial_share: float = setting(0.05, help="auto: share of the run each view-dependence "
+                                                 "trial trains")
+    view_margin_db: float = setting(0.2, help="auto: view-dependent colour is kept when it does "
+                                              "better than without by more than this")
     colour_max: float = setting(1.5, help="largest object colour (raised to 2x the 99.9th "
                                           "percentile of the training images)")
     init_opacity: float = setting(0.05, help="initial object opacity across the scene box")
@@ -107,9 +117,11 @@ class MediumConfig:
                   "the rays they show as open water are taken instead, whatever the model's "
                   "opacity (0 = do not use open water)")
     open_water_from: float = setting(
-        0.3, help="progress from which refits take the model's empty rays as open water "
-                  "(earlier, unfinished surfaces are transparent too); the photographs' open "
-                  "water is used from the first refit")
+        1.1, help="where the photographs show no open water in view: progress from which "
+                  "refits take the model's empty rays as open water (above 1, the default: "
+                  "never; such rays are mostly holes in unfinished surfaces, whose colour put "
+                  "c_med up to 6x off on simulated transects with an interval of +-10%); the "
+                  "photographs' open water is used from the first refit")
     dark_pixel_bound: bool = setting(True, help="refits keep the backscatter below the darkest "
                                                 "pixels at each range (Sea-thru's dark-pixel "
                                                 "estimate)")
@@ -187,6 +199,10 @@ class OptimConfig:
     lr: float = setting(0.05, help="base learning rate of the feature grids")
     density_lr_scale: float = setting(4.0, help="density grid learning rate / lr")
     network_lr_scale: float = setting(0.1, help="decoder / MLP learning rate / lr")
+    view_lr_scale: float = setting(
+        1.0, help="colour decoder's view-direction weights learning rate / lr (they start at "
+                  "zero and must show what they add within a short trial: "
+                  "field.view_dependent_colour=auto)")
     medium_lr_scale: float = setting(1.0, help="water parameters' learning rate / lr")
     warmup_steps: int = setting(30, help="linear warm-up steps")
     lr_final_ratio: float = setting(0.05, help="final learning rate / initial")
@@ -332,7 +348,7 @@ TRAIN_PRESETS: dict[str, dict] = {
                 "sampler": {"samples_per_ray": 24, "candidates_linear": 96,
                             "candidates_disparity": 24}},
     "paper": {
-        "field": {"kind": "mlp", "view_dependent_colour": True, "min_views": 0},
+        "field": {"kind": "mlp", "view_dependent_colour": "on", "min_views": 0},
         "sampler": {"kind": "hierarchical", "coarse_samples": 128, "fine_samples": 32},
         "medium": {"mode": "view", "render_method": "paper", "water_before": False,
                    "water_after": False},

@@ -240,15 +240,42 @@ class TriPlanes(nn.Module):
 
 
 class ColourDecoder(nn.Module):
-    """Tiny MLP: features (+ SH of the view direction) -> linear RGB in (0, colour_max)."""
+    """Tiny MLP: features (+ SH of the view direction) -> linear RGB in (0, colour_max).
 
-    def __init__(self, in_features: int, hidden: int, view_dependent: bool, colour_max: float):
+    The direction enters through its own first-layer weights (``view``), started at zero: a
+    view-dependent decoder starts from view-independent colours. ``view_dependent="auto"``
+    builds it switched on, with a switch (:meth:`set_view_enabled`) that can drop it later
+    (the decision is ``Trainer.select_view_dependence``); the switch is a buffer, so
+    checkpoints keep it.
+    """
+
+    def __init__(self, in_features: int, hidden: int, view_dependent: bool | str,
+                 colour_max: float):
         super().__init__()
-        self.view_dependent = view_dependent
+        self.view_dependent = view_dependent in (True, "on", "auto")
         self.colour_max = colour_max
-        extra = 16 if view_dependent else 0
-        self.net = nn.Sequential(nn.Linear(in_features + extra, hidden), nn.ReLU(inplace=True),
+        self.net = nn.Sequential(nn.Linear(in_features, hidden), nn.ReLU(inplace=True),
                                  nn.Linear(hidden, 3))
+        if self.view_dependent:
+            self.view = nn.Linear(16, hidden, bias=False)
+            nn.init.zeros_(self.view.weight)
+        if view_dependent == "auto":
+            self.register_buffer("view_enabled", torch.tensor(True))
+
+    @property
+    def uses_view(self) -> bool:
+        """Whether the colour currently depends on the view direction."""
+        enabled = getattr(self, "view_enabled", None)
+        return self.view_dependent and (enabled is None or bool(enabled))
+
+    def set_view_enabled(self, enabled: bool) -> None:
+        """Switch the view input of an ``auto`` decoder on or off."""
+        if not hasattr(self, "view_enabled"):
+            raise ValueError("only a decoder built with view_dependent='auto' can be switched")
+        self.view_enabled.fill_(bool(enabled))
+
+    def view_parameters(self) -> list[nn.Parameter]:
+        return list(self.view.parameters()) if self.view_dependent else []
 
     def init_colour(self, rgb) -> None:
         """Start every point at colour ``rgb`` (3,), e.g. the images' mean colour."""
@@ -259,16 +286,17 @@ class ColourDecoder(nn.Module):
             self.net[-1].weight.mul_(0.5)
 
     def forward(self, features: Tensor, dirs: Tensor | None) -> Tensor:
-        if self.view_dependent:
-            features = torch.cat([features, spherical_harmonics(dirs, 3)], dim=-1)
-        return torch.sigmoid(self.net(features)) * self.colour_max
+        hidden = self.net[0](features)
+        if self.uses_view:
+            hidden = hidden + self.view(spherical_harmonics(dirs, 3))
+        return torch.sigmoid(self.net[2](self.net[1](hidden))) * self.colour_max
 
 
 class GridField(nn.Module):
     """Dense density grid + tri-plane colour features; see the module docstring."""
 
     def __init__(self, box_extent, density_res: int, plane_res: int, plane_coarse_res: int,
-                 channels: int, hidden: int, view_dependent: bool, colour_max: float,
+                 channels: int, hidden: int, view_dependent: bool | str, colour_max: float,
                  init_density: float, density_coarse_res: int = 32):
         super().__init__()
         # Grid coordinates span the box plus the contracted shell: twice the box per axis.
@@ -281,6 +309,10 @@ class GridField(nn.Module):
 
     def density_at(self, g: Tensor) -> Tensor:
         return self.density(g)
+
+    @property
+    def uses_view(self) -> bool:
+        return self.decoder.uses_view
 
     def colour_at(self, g: Tensor, dirs: Tensor | None) -> Tensor:
         return self.decoder(self.planes(g), dirs)
@@ -301,7 +333,11 @@ class GridField(nn.Module):
         return list(self.planes.parameters())
 
     def network_parameters(self) -> list[nn.Parameter]:
-        return list(self.decoder.parameters())
+        view = {id(p) for p in self.decoder.view_parameters()}
+        return [p for p in self.decoder.parameters() if id(p) not in view]
+
+    def view_parameters(self) -> list[nn.Parameter]:
+        return self.decoder.view_parameters()
 
     @torch.no_grad()
     def occupancy_density(self, dilate: int = 1) -> Tensor:
@@ -361,3 +397,6 @@ class MLPField(nn.Module):
 
     def network_parameters(self) -> list[nn.Parameter]:
         return list(self.parameters())
+
+    def view_parameters(self) -> list[nn.Parameter]:
+        return []

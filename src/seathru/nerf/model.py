@@ -89,8 +89,9 @@ class SeaThruModel(nn.Module):
                                    config.field.decoder_hidden, config.field.view_dependent_colour,
                                    config.field.colour_max, init_density, config.field.density_coarse_res)
         else:
+            # the paper's MLP is view-dependent unless told otherwise: no trial for it
             self.field = MLPField(config.field.mlp_width, config.field.mlp_depth, colour_max=config.field.colour_max,
-                                  view_dependent=config.field.view_dependent_colour)
+                                  view_dependent=config.field.view_dependent_colour != "off")
         sigma_init = config.medium.sigma_init or 0.5 / typical
         c_med = scene.get("c_med_init", [0.1, 0.2, 0.3])
         if config.field.kind == "grid":
@@ -132,6 +133,7 @@ class SeaThruModel(nn.Module):
     def load_state_dict_resizing(self, state: dict) -> None:
         """load_state_dict after giving grid parameters the shapes found in ``state``."""
         own = dict(self.named_parameters())
+        state = _split_decoder_view_columns(state, own)
         for name, value in state.items():
             if name in own and tuple(own[name].shape) != tuple(value.shape):
                 _replace_parameter(self, name, torch.empty(value.shape, dtype=own[name].dtype,
@@ -223,7 +225,7 @@ class SeaThruModel(nn.Module):
             keep = (w.reshape(-1) > c.sampler.colour_weight_threshold).nonzero().squeeze(-1)
         with record_function("seathru.colour"):
             view = None
-            if c.field.view_dependent_colour:
+            if self.field.uses_view:
                 view = dirs[:, None, :].expand(rays, samples, 3).reshape(-1, 3)[keep]
             colours = self.field.colour_at(g[keep], view)
             rgb = colours.new_zeros(rays * samples, 3).index_copy(0, keep, colours)
@@ -311,3 +313,16 @@ def scene_from_frames(frames, near: float, far: float, centre, scale: float, mea
     if mean_rgb is not None:
         scene["c_med_init"] = [float(v) for v in mean_rgb]
     return scene
+
+
+def _split_decoder_view_columns(state: dict, own: dict) -> dict:
+    """Models saved before the decoder had its own ``view`` layer kept the direction's weights
+    as the last 16 columns of the first layer: split them into the current layout."""
+    first, view = "field.decoder.net.0.weight", "field.decoder.view.weight"
+    if view in own and view not in state and first in state and first in own \
+            and state[first].shape[1] == own[first].shape[1] + own[view].shape[1]:
+        state = dict(state)
+        weight = state[first]
+        state[first], state[view] = weight[:, :own[first].shape[1]], \
+            weight[:, own[first].shape[1]:]
+    return state

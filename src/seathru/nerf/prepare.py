@@ -57,13 +57,7 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
     """
     device = torch.device(device)
     config = resolve_batch_rays(config, device.type)
-    water_masks = [open_water_mask(image, valid=masks[i] if masks is not None and i < len(masks)
-                                   else None,
-                                   min_brightness=config.medium.auto_veiling_brightness)
-                   for i, image in enumerate(images)]
-    water_share = open_water_share(water_masks, masks)
-    # a few smooth blocks at the top of the frames are far haze, not open water in view
-    in_view = water_share > config.medium.auto_open_water_share
+    water_masks, water_share, in_view = open_water_in_view(config, images, masks)
     data = RayDataset(train_frames, images, masks, device=device,
                       open_water=water_masks if in_view else None)
     if len(data) == 0:
@@ -150,6 +144,28 @@ def veiling_light_estimate(images, masks=None, block: int = 4, share: float = 0.
     if float(spread.max()) > max_spread:
         return None
     return [float(v) for v in median]
+
+
+def open_water_in_view(config: TrainConfig, images, masks=None
+                       ) -> tuple[list[np.ndarray], float, bool]:
+    """The photographs' open water (``seathru.radiometry.open_water``) as training uses it.
+
+    Returns:
+        the masks (H, W) per image, their share of the valid pixels
+        (:func:`open_water_share`), and whether that share is above
+        ``medium.auto_open_water_share`` (below it, a few smooth blocks at the top of the
+        frames are far haze, not open water in view: the rays get no open-water flags).
+
+    Example::
+
+        water_masks, share, in_view = open_water_in_view(config, images, masks)
+    """
+    water_masks = [open_water_mask(image, valid=masks[i] if masks is not None and i < len(masks)
+                                   else None,
+                                   min_brightness=config.medium.auto_veiling_brightness)
+                   for i, image in enumerate(images)]
+    share = open_water_share(water_masks, masks)
+    return water_masks, share, share > config.medium.auto_open_water_share
 
 
 def open_water_share(water_masks, masks=None) -> float:

@@ -116,6 +116,14 @@ class Trainer:
         if self.config.medium.mode != "auto":
             self.selection = {"requested": self.config.medium.mode, "chosen": self.config.medium.mode,
                               "reason": "set explicitly (medium.mode)"}
+        requested = self.config.field.view_dependent_colour
+        self.view_selection: dict | None = None
+        if not hasattr(model.field, "decoder") or not hasattr(model.field.decoder,
+                                                               "view_enabled"):
+            self.view_selection = {"requested": requested,
+                                   "chosen": "off" if requested == "off" else "on",
+                                   "reason": "set explicitly (field.view_dependent_colour)"
+                                   if requested != "auto" else "the MLP field is view-dependent"}
         self.optimizer = self._build_optimizer()
         self._snapshot = None
         self._eval_steps = log_spaced_steps(self.config.steps)
@@ -195,6 +203,7 @@ class Trainer:
                 ("features", m.field.feature_parameters(), c.optim.lr),
                 ("networks", m.field.network_parameters() + m.medium.network_parameters(),
                  c.optim.lr * c.optim.network_lr_scale),
+                ("view", m.field.view_parameters(), c.optim.lr * c.optim.view_lr_scale),
                 ("medium", m.medium.global_parameters(), c.optim.lr * c.optim.medium_lr_scale)]
         return [{"params": params, "lr": lr, "base_lr": lr, "name": name}
                 for name, params, lr in spec if params]
@@ -237,6 +246,7 @@ class Trainer:
                 "log": [dict(row) for row in self.log], "lr_scale": self.lr_scale,
                 "rollbacks": self.rollbacks,
                 "selection": copy.deepcopy(self.selection),
+                "view_selection": copy.deepcopy(self.view_selection),
                 "water_refits": copy.deepcopy(self.water_refits)}
 
     def load_checkpoint(self, ckpt: dict) -> None:
@@ -254,6 +264,7 @@ class Trainer:
         self.lr_scale = float(ckpt["lr_scale"])
         self.rollbacks = int(ckpt["rollbacks"])
         self.selection = ckpt.get("selection")
+        self.view_selection = ckpt.get("view_selection", self.view_selection)
         self.water_refits = list(ckpt.get("water_refits", []))
 
     # -------------------------------------------------------------------- guard
@@ -321,6 +332,74 @@ class Trainer:
         self.generator.set_state(state["generator"])
         self.step = state["step"]
         self.model.refresh_occupancy()
+
+    def _trial_steps(self, share: float) -> int:
+        """Steps of one trial: ``share`` of the steps the run will make (10 to 500)."""
+        c = self.config
+        budget = c.max_minutes * 60.0 if c.max_minutes and c.max_minutes > 0 else math.inf
+        rate = self.step / max(self.elapsed_s, 1e-6)
+        horizon = min(float(c.steps), rate * budget)
+        return int(min(500, max(10, share * horizon)))
+
+    def _race(self, setups: dict[str, Callable[[], None]], trial: int
+              ) -> tuple[dict[str, float], dict[str, dict]]:
+        """Train ``trial`` steps from the current state under each setup in turn, on the same
+        batches (the batch generator is restored with the state), and measure each on the
+        held-out training rays. Returns the PSNR and the end state per setup name (all but the
+        last's: the model is left where the last one ended)."""
+        start = self._state()
+        results, ends = {}, {}
+        names = list(setups)
+        for name in names:
+            if name != names[0]:
+                ends[names[names.index(name) - 1]] = self._state()
+                self._restore(start)
+            setups[name]()
+            progress = self._progress()
+            for _ in range(trial):
+                self._set_lr(progress)
+                if self._optimise_once() is not None:
+                    self.step += 1
+            results[name] = self._probe_psnr()
+        return results, ends
+
+    def select_view_dependence(self) -> dict:
+        """``field.view_dependent_colour=auto``: object colour with or without the view
+        direction, the simpler unless the views ask for more.
+
+        The grid field trains with it until ``field.view_select_at`` (its weights start at
+        zero: it holds only what the views taught it). Then the model trains on for the same
+        few steps on the same batches with it and without it (``field.view_trial_share`` of
+        the run each), and the two are compared on the held-out training rays. Without it, the
+        rest of the model has those steps to take over what the direction's weights held
+        in common to all directions; what it cannot take over is colour that really changes
+        with direction. View-dependent colour is kept only when it does better by
+        ``field.view_margin_db``: it costs the SH of every colour sample, and where the
+        surfaces look the same from every side it can only fit noise or stand in for errors of
+        the geometry or the water.
+        """
+        c = self.config
+        decoder = self.model.field.decoder
+        trial = self._trial_steps(c.field.view_trial_share)
+        from_step = self.step
+        results, ends = self._race({"on": lambda: decoder.set_view_enabled(True),
+                                    "off": lambda: decoder.set_view_enabled(False)}, trial)
+        gain = results["on"] - results["off"]
+        chosen = "on" if gain > c.field.view_margin_db else "off"
+        if chosen == "on":
+            self._restore(ends["on"])
+        self._take_snapshot()
+        verdict = (f"better by {gain:.2f} dB > {c.field.view_margin_db:g} dB: kept"
+                   if chosen == "on" else
+                   f"not better by more than {c.field.view_margin_db:g} dB ({gain:+.2f} dB): "
+                   "dropped, colour without the view direction")
+        return {"requested": "auto", "chosen": chosen, "decided_at_step": from_step,
+                "trial_steps": trial, "validation_psnr_off": results["off"],
+                "validation_psnr_on": results["on"], "margin_db": c.field.view_margin_db,
+                "reason": (f"trained {trial} steps with and without view-dependent colour from "
+                           f"step {from_step}: on {len(self.probe)} held-out training rays "
+                           f"{results['on']:.2f} dB with it, {results['off']:.2f} dB without; "
+                           f"{verdict}")}
 
     def select_medium(self) -> dict:
         """``medium.mode=auto``: no water (plain NeRF) or the water the run started with, the
@@ -428,23 +507,10 @@ class Trainer:
                       f"(< {100 * c.medium.auto_attenuation:g}%): clear water, plain NeRF")
             self.model.medium.set_mode(chosen)
         else:
-            budget = c.max_minutes * 60.0 if c.max_minutes and c.max_minutes > 0 else math.inf
-            rate = self.step / max(self.elapsed_s, 1e-6)
-            horizon = min(float(c.steps), rate * budget)
-            trial = int(min(500, max(10, c.medium.auto_trial_share * horizon)))
-            start = self._state()
-            results, ends = {}, {}
-            for mode in ("off", water_mode):
-                if mode != "off":
-                    ends["off"] = self._state()
-                    self._restore(start)
-                self.model.medium.set_mode(mode)
-                progress = self._progress()
-                for _ in range(trial):
-                    self._set_lr(progress)
-                    if self._optimise_once() is not None:
-                        self.step += 1
-                results[mode] = self._probe_psnr()
+            trial = self._trial_steps(c.medium.auto_trial_share)
+            from_step = self.step
+            results, ends = self._race({mode: (lambda m=mode: self.model.medium.set_mode(m))
+                                        for mode in ("off", water_mode)}, trial)
             gain = results[water_mode] - results["off"]
             margin = c.medium.auto_margin_db if evidence \
                 else c.medium.auto_margin_no_evidence_db
@@ -467,7 +533,7 @@ class Trainer:
                            "images show no open water, far wall or fading with range: no "
                            "water, plain NeRF")
             reason = (f"trained {trial} steps with and without water from step "
-                      f"{start['step']}: on {len(self.probe)} held-out training rays the water "
+                      f"{from_step}: on {len(self.probe)} held-out training rays the water "
                       f"model ({water_mode}) reaches {results[water_mode]:.2f} dB, no water "
                       f"{results['off']:.2f} dB; the water is {verdict} (it made up "
                       f"{100 * backscatter_share:.1f}% of the image as backscatter, attenuation "
@@ -642,6 +708,10 @@ class Trainer:
             if len(self.water_refits) < refits_due:
                 self.water_refits.append(self.refit_water())
                 self._take_snapshot()
+            if self.view_selection is None and progress >= c.field.view_select_at:
+                self.view_selection = self.select_view_dependence()
+                self._say(f"step {self.step}: view-dependent colour "
+                          f"{self.view_selection['chosen']}: {self.view_selection['reason']}")
             if self.selection is None and progress >= c.medium.auto_select_at:
                 self.selection = self.select_medium()
                 self._say(f"step {self.step}: medium '{self.selection['chosen']}': "
@@ -691,6 +761,10 @@ class Trainer:
                     next_quality *= 2.0
 
         self.elapsed_s = base_elapsed + (time.perf_counter() - run_start - self._eval_seconds)
+        if self.view_selection is None:
+            self.view_selection = {"requested": "auto", "chosen": "on",
+                                   "reason": "the run ended before field.view_select_at: "
+                                             "kept as trained, with the view direction"}
         if self.selection is None:  # stopped before the decision point: decide now
             self.selection = self.select_medium()
             self._say(f"medium '{self.selection['chosen']}': {self.selection['reason']}")

@@ -141,10 +141,8 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     report = WaterReport.from_parameters(model.water_parameters(directions),
                                          float(cameras.scale), trainer.assess_water())
     write_water(out / "water.json", report)
-    warnings = [step_warning("train", "water_undetermined", (
-        f"the views do not determine {', '.join(report.undetermined)} of the water (95% "
-        "interval wider than +-25%): the restored images rest on them"),
-        parameters=report.undetermined)] if report.undetermined else []
+    warnings = [step_warning("train", "water_undetermined", report.undetermined_message(),
+                             parameters=report.undetermined)] if report.undetermined else []
     for warning in warnings:
         log.warning("%s", warning["message"])
     write_warnings(out / "warnings.json", warnings)
@@ -152,6 +150,7 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     write_snapshots(out, snapshots.rows, snapshots.renders, snapshots.downscale)
     write_json(out / "selection.json", {**result.selection, "final_mode": model.medium.mode,
                                          "water_refits": trainer.water_refits,
+                                         "view_dependent_colour": trainer.view_selection,
                                          "capacity": prepared.capacity})
     test_text = "n/a" if result.final_test_psnr is None else f"{result.final_test_psnr:.2f} dB"
     log.info("trained %d steps in %.0f s (stopped by %s; %.1f steps/s, %.0f rays/s); held-out "
