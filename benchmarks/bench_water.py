@@ -15,6 +15,7 @@ that surface fit.
 
     python benchmarks/bench_water.py [--views 16 --width 160 --height 120] [--minutes 1.0]
         [--waters default,turbid,...] [--paths orbit,transect,survey] [--jobs 2]
+        [--train-args '--field.view-dependent-colour off']
 
 Writes benchmarks/results/water.md (and water.json with every number).
 """
@@ -58,7 +59,7 @@ def train(sim: Path, variant: str, args) -> Path:
                    str(sim / "truth" / "cameras.json"), "--out", str(out), "--checkpoint-dir",
                    str(out.parent / f"ckpt_{out.name}"), "--threads", "1", "--no-progress",
                    "--max-minutes", str(args.minutes), "--seed", str(args.seed),
-                   *VARIANTS[variant]]
+                   *VARIANTS[variant], *args.train_args.split()]
         done = subprocess.run(command, capture_output=True, text=True)
         (out.parent / f"{out.name}.log").write_text(done.stdout + done.stderr)
         if done.returncode != 0:
@@ -140,6 +141,9 @@ def main() -> None:
     parser.add_argument("--no-cues-waters", default="default,coastal_3c",
                         help="waters also trained without the cues ('all' for every water)")
     parser.add_argument("--jobs", type=int, default=2, help="trainings in parallel")
+    parser.add_argument("--train-args", default="",
+                        help="extra train flags for every run, e.g. "
+                             "'--field.view-dependent-colour off'")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--work", type=Path, default=None)
     parser.add_argument("--out", type=Path, default=RESULTS)
@@ -195,7 +199,8 @@ def write_results(rows: list[dict], args, seconds: float) -> None:
              "errors per channel (R, G, B); interval: 95% from water.json's uncertainty; "
              "`?` = flagged as not determined by the views (water.json); robust: "
              "`water_fit.robust_halfwidths` recomputed on the final model's surfaces, around "
-             "the trained value widened by its distance to that fit.", ""]
+             "the trained value widened by its distance to that fit."
+             + (f" Extra train flags: `{args.train_args}`." if args.train_args else ""), ""]
     for variant in dict.fromkeys(r["variant"] for r in rows):
         lines.append("- " + _summary(rows, variant))
     lines += ["", "| path | water | variant | medium | sigma_attn error | sigma_bs error | "

@@ -440,15 +440,16 @@ def test_view_dependent_colour_starts_from_the_view_independent_colours():
     features = torch.randn(64, 12)
     dirs = torch.nn.functional.normalize(torch.randn(64, 3), dim=-1)
     auto = ColourDecoder(12, 8, "auto", 1.5)
-    assert auto.uses_view          # auto trains with the direction until it is decided
+    assert not auto.uses_view      # auto trains without the direction until it is decided
     start = auto(features, dirs)
-    auto.set_view_enabled(False)
+    auto.set_view_enabled(True)
+    assert auto.uses_view
     assert torch.equal(auto(features, dirs), start)     # zero view weights: same colours
     with torch.no_grad():
         auto.view.weight.normal_()
-    assert torch.equal(auto(features, dirs), start)     # switched off: the direction is ignored
-    auto.set_view_enabled(True)
     assert not torch.allclose(auto(features, dirs), start)
+    auto.set_view_enabled(False)
+    assert torch.equal(auto(features, dirs), start)     # switched off: the direction is ignored
     with pytest.raises(ValueError, match="auto"):
         ColourDecoder(12, 8, "on", 1.5).set_view_enabled(False)
     assert not ColourDecoder(12, 8, "off", 1.5).uses_view

@@ -244,9 +244,9 @@ class ColourDecoder(nn.Module):
 
     The direction enters through its own first-layer weights (``view``), started at zero: a
     view-dependent decoder starts from view-independent colours. ``view_dependent="auto"``
-    builds it switched on, with a switch (:meth:`set_view_enabled`) that can drop it later
-    (the decision is ``Trainer.select_view_dependence``); the switch is a buffer, so
-    checkpoints keep it.
+    builds it switched off; switching it on (:meth:`set_view_enabled`) starts from the same
+    colours and lets the direction's weights train from there (the decision is
+    ``Trainer.select_view_dependence``). The switch is a buffer, so checkpoints keep it.
     """
 
     def __init__(self, in_features: int, hidden: int, view_dependent: bool | str,
@@ -260,7 +260,7 @@ class ColourDecoder(nn.Module):
             self.view = nn.Linear(16, hidden, bias=False)
             nn.init.zeros_(self.view.weight)
         if view_dependent == "auto":
-            self.register_buffer("view_enabled", torch.tensor(True))
+            self.register_buffer("view_enabled", torch.tensor(False))
 
     @property
     def uses_view(self) -> bool:
