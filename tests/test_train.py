@@ -397,18 +397,22 @@ def test_surfaces_that_fade_with_range_are_evidence_even_when_not_determined(
 @pytest.mark.parametrize("tint, chosen", [(0.0, "off"), (0.9, "on")])
 def test_view_dependent_colour_is_kept_only_where_the_colour_changes_with_direction(
         default_scene, tint, chosen):
-    # the simulated reef is Lambertian; the tint makes every surface brighter seen towards +x
+    # the simulated reef is Lambertian; the tint makes every surface brighter seen towards +x.
+    # The margin is the mechanism's, not the default's: on this 300-step scene the tint's gain
+    # varies with the initial weights (0.4-1.0 dB), the plain scene's stays within 0.15 dB.
+    torch.manual_seed(0)
     trainer = _small_trainer(default_scene, steps=300,
-                             field={**FAST["field"], "view_trial_share": 0.2})
+                             field={**FAST["field"], "view_trial_share": 0.35,
+                                    "view_margin_db": 0.25})
     for rays in (trainer.data.rays, trainer.probe):
         rays.rgb = rays.rgb * (1 + tint * rays.directions[:, :1])
     trainer.run()
     selection = trainer.view_selection
     assert selection["chosen"] == chosen, selection["reason"]
-    assert selection["decided_at_step"] == 30 and selection["trial_steps"] == 60
+    assert selection["decided_at_step"] == 30 and selection["trial_steps"] == 105
     assert trainer.model.field.uses_view is (chosen == "on")
     gain = selection["validation_psnr_on"] - selection["validation_psnr_off"]
-    assert (gain > 0.5) if chosen == "on" else (abs(gain) < 0.2)
+    assert (gain > 0.25) if chosen == "on" else (abs(gain) < 0.2)
 
 
 def test_explicit_view_dependence_runs_no_trial(default_scene):
