@@ -40,8 +40,8 @@ class FieldConfig:
     view_select_at: float = setting(
         0.1, help="auto: progress at which view-dependent colour is decided (later, the rest "
                   "of the model has already made up for it with floaters and a short trial "
-                  "cannot show what it adds: a surface tinted by +-30% with direction gained "
-                  "0.53 dB at 0.1, 0.20 dB at 0.3)")
+                  "cannot show what it adds: a tint of +-30% with direction gained 0.48-0.66 "
+                  "dB at 0.1, 0.02-0.37 dB at 0.3; benchmarks/results/view_trial.md)")
     view_trial_share: float = setting(0.05, help="auto: share of the run each view-dependence "
                                                  "trial trains")
     view_margin_db: float = setting(

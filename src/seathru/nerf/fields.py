@@ -333,8 +333,7 @@ class GridField(nn.Module):
         return list(self.planes.parameters())
 
     def network_parameters(self) -> list[nn.Parameter]:
-        view = {id(p) for p in self.decoder.view_parameters()}
-        return [p for p in self.decoder.parameters() if id(p) not in view]
+        return list(self.decoder.net.parameters())   # the direction's weights: view_parameters
 
     def view_parameters(self) -> list[nn.Parameter]:
         return self.decoder.view_parameters()
