@@ -115,6 +115,7 @@ def model_surfaces(sim: Path, train: Path):
     from seathru.io.water import read_truth_water, read_water
     from seathru.nerf.prepare import open_water_in_view
     from seathru.nerf.rays import RayDataset
+    from seathru.nerf.training import refit_open_water_opacity
     from seathru.nerf.water_fit import surface_data
 
     model = load_model(train / "model.pt")
@@ -136,8 +137,8 @@ def model_surfaces(sim: Path, train: Path):
     data = surface_data(rays.origins, rays.directions, rays.rgb, torch.cat(depth),
                         torch.cat(opacity), config.medium.refit_voxel * diagonal,
                         config.medium.refit_opacity,
-                        open_water_opacity=config.medium.open_water_opacity
-                        if in_view or config.medium.open_water_from <= 1.0 else 0.0,
+                        open_water_opacity=refit_open_water_opacity(config.medium, in_view,
+                                                                    1.0),
                         open_water=rays.open_water)
     report = read_water(train / "water.json")
     truth = read_truth_water(sim / "truth" / "water.json").scaled(1 / report.scale).as_dict()

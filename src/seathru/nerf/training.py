@@ -552,10 +552,8 @@ class Trainer:
         rays = self.data.fixed_subset(c.medium.refit_rays, seed)
         rendered = self.render_batch(rays)
         diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
-        # the photographs' open water needs no converged model; the model's empty rays do
-        from_images = rays.open_water is not None
-        open_water = c.medium.open_water_opacity \
-            if from_images or self._progress() >= c.medium.open_water_from else 0.0
+        open_water = refit_open_water_opacity(c.medium, rays.open_water is not None,
+                                              self._progress())
         return surface_data(rays.origins, rays.directions, rays.rgb, rendered["depth_median"],
                             rendered["opacity"], c.medium.refit_voxel * diagonal,
                             c.medium.refit_opacity, open_water_opacity=open_water,
@@ -872,6 +870,14 @@ class ThreadTuner:
             self.current = best
             torch.set_num_threads(best)
             self.times = {}
+
+
+def refit_open_water_opacity(medium, from_images: bool, progress: float) -> float:
+    """The ``open_water_opacity`` a water fit at ``progress`` passes to
+    ``water_fit.surface_data`` (0: no open water): the photographs' open water needs no
+    converged model; the model's empty rays count only from ``medium.open_water_from``."""
+    return medium.open_water_opacity if from_images or progress >= medium.open_water_from \
+        else 0.0
 
 
 def refit_acceptance(fit, spread, before: dict, colour_max: float,
