@@ -394,6 +394,36 @@ def test_surfaces_that_fade_with_range_are_evidence_even_when_not_determined(
     assert any("surfaces seen over a range" in text for text in found) == evidence, found
 
 
+def test_the_surface_fit_is_spared_when_other_evidence_shows_water(monkeypatch):
+    # it costs seconds of the budget and could only add evidence to a decision already made
+    from tests.test_nerf_prepare import _dive_image, _frames
+    from seathru.io.cameras import CameraSet
+    from seathru.nerf.prepare import prepare_run
+
+    rng = np.random.default_rng(6)
+    frames = _frames(3)
+    images = [_dive_image(rng, 0)[:48, :64] for _ in frames]
+    config = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0,
+                                                 "steps": 40, "medium": {"mode": "global"}})
+    tracks = {"tracks": 500, "t": [-12.0, 1.0, 0.5],
+              "change_over_median_range": [-0.4, 0.02, 0.01]}
+    calls = []
+    for track_change in (tracks, None):
+        run = prepare_run(config, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
+                          [None] * 3, track_change=track_change)
+        run.model.medium.set_global([0.5] * 3, [0.5] * 3, [0.001] * 3)
+        trainer = Trainer(run.model, run.data, device="cpu", frames=frames)
+        monkeypatch.setattr(trainer, "assess_water", lambda: calls.append(1) or {
+            "surface_fit": {"sigma_attn": [2.0] * 3}, "determined": {"sigma_attn": [True] * 3}})
+        monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0)
+        stats = trainer.select_medium()["statistics"]
+        if track_change is not None:
+            assert not calls and stats["surface_attenuation_over_depth"] is None
+            assert any("COLMAP tracks" in text for text in stats["evidence_of_water"])
+        else:
+            assert calls == [1] and stats["attenuation_determined"] is True
+
+
 @pytest.mark.parametrize("tint, chosen", [(0.0, "off"), (0.9, "on")])
 def test_view_dependent_colour_is_kept_only_where_the_colour_changes_with_direction(
         default_scene, tint, chosen):

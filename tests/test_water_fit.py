@@ -54,6 +54,28 @@ def test_fit_recovers_the_water_from_surfaces_seen_over_a_range_of_distances(sta
     assert fit.pixels == len(ranges) and fit.groups == groups
 
 
+def test_fit_converges_alike_whatever_the_brightness_of_the_images(monkeypatch):
+    # a dim exposure scales the loss by its square: the fit must end at the same water, in
+    # about as many loss evaluations (absolute tolerances used to run dim fits to the limit)
+    import seathru.nerf.water_fit as water_fit
+
+    ranges, observed, ids, groups = _observations(np.random.default_rng(2), noise=1e-3)
+    calls = []
+    real = water_fit.projected_loss
+    monkeypatch.setattr(water_fit, "projected_loss", lambda *a: calls.append(1) or real(*a))
+    fits, evaluations = [], []
+    for gain in (1.0, 0.02):
+        scaled = {"sigma_attn": 0.3, "sigma_bs": 0.3, "c_med": 0.5 * gain}
+        calls.clear()
+        fit = fit_water(ranges, observed * gain, ids, groups, scaled)
+        fits.append(fit)
+        evaluations.append(len(calls))
+    for key in ("sigma_attn", "sigma_bs"):
+        assert np.allclose(getattr(fits[1], key), getattr(fits[0], key), rtol=1e-4), key
+    assert np.allclose(np.array(fits[1].c_med) / 0.02, fits[0].c_med, rtol=1e-4)
+    assert evaluations[1] < 2 * evaluations[0] + 20, evaluations
+
+
 def _fit_and_spread(ranges, observed, ids, groups):
     fit = fit_water(ranges, observed, ids, groups,
                     {"sigma_attn": 0.3, "sigma_bs": 0.3, "c_med": 0.5})

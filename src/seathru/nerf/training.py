@@ -419,7 +419,8 @@ class Trainer:
         where the veiling light is visible: ``auto_veiling_brightness``), a density wall at the
         far bound standing in for it, the input colour changing with range along the COLMAP
         tracks (``seathru.io.tracks.input_colour_change``), attenuation the surfaces seen
-        over a range of distances determine (``assess_water``), or a fitted water whose
+        over a range of distances determine (``assess_water``; made only when nothing else
+        shows water, as it costs seconds of the budget), or a fitted water whose
         backscatter is a large share of the image (``auto_backscatter_evidence``). With such
         evidence the water stays unless no water is better by ``auto_margin_db``; without it,
         the water must be better by ``auto_margin_no_evidence_db``. The paper's fully
@@ -453,10 +454,6 @@ class Trainer:
         walled = (rendered["opacity"] > 0.5) & (rendered["depth_median"] > 0.95 * far)
         wall = float(walled.float().mean()) \
             if bool(walled.any()) and visible(observed[walled]) else 0.0
-        assessment = self.assess_water() or {}
-        determined = all(assessment.get("determined", {}).get("sigma_attn", [False]))
-        surface_attenuation = 1.0 - math.exp(-max(assessment.get("surface_fit", {}).get(
-            "sigma_attn", [0.0])) * depth)
         image_water = float(self.model.scene.get("open_water_image_share", 0.0))
         tracks = self.model.scene.get("track_colour_change") or {}
         fading = [abs(t) > c.medium.auto_track_t and abs(change) > c.medium.auto_track_change
@@ -478,11 +475,17 @@ class Trainer:
             (backscatter_share >= c.medium.auto_backscatter_evidence,
              f"the fitted water's backscatter makes up {100 * backscatter_share:.0f}% of the "
              "image"),
-            ((determined or surface_attenuation >= c.medium.auto_surface_fading)
-             and surface_attenuation > 2 * c.medium.auto_attenuation,
-             f"surfaces seen over a range of distances fade by {100 * surface_attenuation:.0f}% "
-             "over the median depth" + (" (attenuation determined)" if determined else ""))
         ) if present]
+        # The surface fit costs seconds of the budget (12 s of a 90-s demo run) and can only
+        # add evidence: it is made when nothing else shows water, where it decides.
+        surface_attenuation, determined = None, None
+        if not evidence:
+            surface_attenuation, determined = self._surface_fading(depth)
+            if (determined or surface_attenuation >= c.medium.auto_surface_fading) \
+                    and surface_attenuation > 2 * c.medium.auto_attenuation:
+                evidence.append(f"surfaces seen over a range of distances fade by "
+                                f"{100 * surface_attenuation:.0f}% over the median depth"
+                                + (" (attenuation determined)" if determined else ""))
         stats = {"backscatter_share": backscatter_share, "attenuation_over_depth": attenuation,
                  "scene_depth_median": depth, "object_hit_share": float(hit.float().mean()),
                  "open_water_share": open_water, "open_water_image_share": image_water,
@@ -544,6 +547,14 @@ class Trainer:
         return {"requested": "auto", "chosen": chosen, "reason": reason,
                 "candidates": ["off", water_mode], **decided_at,
                 "statistics": stats, "thresholds": thresholds}
+
+    def _surface_fading(self, depth: float) -> tuple[float, bool]:
+        """How much the surfaces seen over a range of distances fade over ``depth`` by their
+        own water fit (``assess_water``), and whether their attenuation is determined."""
+        assessment = self.assess_water() or {}
+        determined = all(assessment.get("determined", {}).get("sigma_attn", [False]))
+        return 1.0 - math.exp(-max(assessment.get("surface_fit", {}).get(
+            "sigma_attn", [0.0])) * depth), determined
 
     # -------------------------------------------------------------------- loop
     @torch.no_grad()

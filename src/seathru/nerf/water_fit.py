@@ -326,12 +326,22 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
     if dark is not None:
         dark = (dark[0].double().to(ranges.device), dark[1].double().to(ranges.device))
 
-    def closure() -> Tensor:
-        optimiser.zero_grad()
+    def objective() -> Tensor:
         attn, bs, c_med = water()
         loss = projected_loss(attn, bs, c_med, ranges, observed, ids, groups)
         if dark is not None:
             loss = loss + dark_weight * dark_excess(bs, c_med, dark)
+        return loss
+
+    # L-BFGS's tolerances are absolute and the loss is a small mean squared residual, so it
+    # is measured relative to its start value. Unscaled, refits on the demo ran to the
+    # evaluation limit (375 evaluations, 4.6 s) and ended above the scaled fit's loss (0.9 s).
+    with torch.no_grad():
+        scale = max(float(objective()), 1e-30)
+
+    def closure() -> Tensor:
+        optimiser.zero_grad()
+        loss = objective() / scale
         loss.backward()
         return loss
 

@@ -1,0 +1,141 @@
+"""2x sooner? The current code at half the budget against an older commit at the full budget.
+
+Issue 14 asks that the demo reach its 3-minute PSNR in half the time. This trains, one after
+the other on the same camera set (the demo's poses by default), the code of ``--baseline`` (a
+git commit: by default c9edca9, main when the issue was filed) for ``--minutes`` and the
+working tree for the same budget and for half of it, renders the held-out views with each run's
+own code and scores all of them with the working tree's evaluate step (held-out PSNR on whole
+images, linear; restored vs clean where the dataset has a truth folder). Written to
+``benchmarks/results/sooner.md``; the verdict is whether the half-budget run reaches the
+baseline's full-budget PSNR. Run it with nothing else on the machine: the budgets are wall-clock
+training time. Usage::
+
+    python benchmarks/bench_sooner.py [--cameras results/demo/poses/cameras.json] \\
+        [--truth results/demo/simulate/truth] [--baseline c9edca9] [--minutes 3] [--repeats 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+
+from machine import cpu_name, load_average
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "benchmarks" / "results" / "sooner.md"
+BASELINE = "c9edca9"
+
+
+def export_source(ref: str, into: Path) -> Path:
+    """The ``src`` folder of commit ``ref`` under ``into`` (git archive: no checkout needed)."""
+    into.mkdir(parents=True, exist_ok=True)
+    archive = subprocess.run(["git", "-C", str(REPO), "archive", ref, "src"], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
+    return into / "src"
+
+
+def seathru(source: Path, args: list[str], log: Path) -> None:
+    env = {**os.environ, "PYTHONPATH": str(source)}
+    with log.open("w") as handle:
+        subprocess.run([sys.executable, "-m", "seathru.cli", *args], env=env, check=True,
+                       stdout=handle, stderr=subprocess.STDOUT)
+
+
+def run_once(name: str, source: Path, minutes: float, cameras: Path, truth: Path | None,
+             work: Path, threads: int) -> dict:
+    out = work / name
+    seathru(source, ["train", "--cameras", str(cameras), "--out", str(out / "train"),
+                     "--checkpoint-dir", str(out / "checkpoints"), "--threads", str(threads),
+                     "--max-minutes", str(minutes)], out.with_suffix(".train.log"))
+    seathru(source, ["render", "--model", str(out / "train" / "model.pt"), "--cameras",
+                     str(cameras), "--out", str(out / "render"), "--threads", str(threads),
+                     "--path-frames", "0"], out.with_suffix(".render.log"))
+    evaluate = ["evaluate", "--cameras", str(cameras), "--renders", str(out / "render"),
+                "--train-dir", str(out / "train"), "--out", str(out / "evaluate"),
+                "--threads", str(threads)]
+    if truth is not None:
+        evaluate += ["--truth", str(truth)]
+    seathru(REPO / "src", evaluate, out.with_suffix(".evaluate.log"))
+    metrics = pd.read_csv(out / "evaluate" / "metrics.csv")
+    log = out.with_suffix(".train.log").read_text().replace("\r", "\n")
+    steps = re.findall(r"trained (\d+) steps in ([\d.]+) s", log)
+    row = {"run": name, "budget_s": 60 * minutes,
+           "steps": int(steps[-1][0]) if steps else None,
+           "training_s": float(steps[-1][1]) if steps else None,
+           "psnr": float(metrics["psnr_linear"].mean())}
+    if "restored_psnr_linear" in metrics:
+        row["restored"] = float(pd.to_numeric(metrics["restored_psnr_linear"],
+                                              errors="coerce").mean())
+    print(row, flush=True)
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cameras", type=Path,
+                        default=REPO / "results" / "demo" / "poses" / "cameras.json")
+    parser.add_argument("--truth", type=Path, default=REPO / "results" / "demo" / "simulate"
+                        / "truth", help="simulator truth folder (skipped when absent)")
+    parser.add_argument("--baseline", default=BASELINE, help="git commit to compare against")
+    parser.add_argument("--minutes", type=float, default=3.0)
+    parser.add_argument("--repeats", type=int, default=1, help="runs of each configuration")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--work", type=Path, default=None)
+    parser.add_argument("--out", type=Path, default=OUT)
+    args = parser.parse_args()
+    if not args.cameras.is_file():
+        sys.exit(f"{args.cameras}: camera file not found; run the demo first (make demo) or "
+                 "pass --cameras")
+    truth = args.truth if args.truth.is_dir() else None
+    work = args.work or Path(tempfile.mkdtemp(prefix="bench_sooner_"))
+    commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
+                            capture_output=True, text=True).stdout.strip()
+    baseline_src = export_source(args.baseline, work / "baseline")
+    load_before = load_average()
+    rows = []
+    for repeat in range(args.repeats):
+        for name, source, minutes in (("baseline", baseline_src, args.minutes),
+                                      ("current_half", REPO / "src", args.minutes / 2),
+                                      ("current", REPO / "src", args.minutes)):
+            row = run_once(f"{name}_{repeat}", source, minutes, args.cameras, truth, work,
+                           args.threads)
+            rows.append({**row, "config": name})
+    table = pd.DataFrame(rows)
+    mean = table.groupby("config")["psnr"].mean()
+    reached = mean["current_half"] >= mean["baseline"]
+    lines = [
+        "# 2x sooner: the current code at half the budget against an older commit "
+        "(`benchmarks/bench_sooner.py`)", "",
+        f"Device: {cpu_name()}, {args.threads} training threads; load average before/after "
+        f"{load_before} / {load_average()}. Camera set `{args.cameras}`; baseline commit "
+        f"{args.baseline}, current {commit} (working tree); each configuration run "
+        f"{args.repeats} time(s), one run at a time. Held-out PSNR on whole images (linear), "
+        "all runs scored by the current evaluate step.", "",
+        "| run | code | budget (s) | steps | training (s) | held-out PSNR (dB) "
+        "| restored vs clean (dB) |", "|---|---|---|---|---|---|---|"]
+    for row in rows:
+        code = args.baseline if row["config"] == "baseline" else commit
+        restored = f"{row['restored']:.2f}" if pd.notna(row.get("restored")) else "—"
+        lines.append(f"| {row['run']} | {code} | {row['budget_s']:.0f} | {row['steps']} | "
+                     f"{row['training_s']:.0f} | {row['psnr']:.2f} | {restored} |")
+    lines += ["", f"Mean held-out PSNR: baseline at {60 * args.minutes:.0f} s "
+              f"{mean['baseline']:.2f} dB; current at {30 * args.minutes:.0f} s "
+              f"{mean['current_half']:.2f} dB, at {60 * args.minutes:.0f} s "
+              f"{mean['current']:.2f} dB. Half the budget "
+              + ("reaches" if reached else "does not reach")
+              + f" the baseline's full-budget PSNR ({mean['current_half'] - mean['baseline']:+.2f}"
+              " dB): 2x sooner " + ("reached." if reached else "not reached.")]
+    args.out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
