@@ -85,6 +85,8 @@ def main() -> None:
     parser.add_argument("--truth", type=Path, default=REPO / "results" / "demo" / "simulate"
                         / "truth", help="simulator truth folder (skipped when absent)")
     parser.add_argument("--baseline", default=BASELINE, help="git commit to compare against")
+    parser.add_argument("--baseline-src", type=Path, default=None,
+                        help="the baseline's src folder, already exported (instead of git)")
     parser.add_argument("--minutes", type=float, default=3.0)
     parser.add_argument("--repeats", type=int, default=1, help="runs of each configuration")
     parser.add_argument("--threads", type=int, default=2)
@@ -97,8 +99,8 @@ def main() -> None:
     truth = args.truth if args.truth.is_dir() else None
     work = args.work or Path(tempfile.mkdtemp(prefix="bench_sooner_"))
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
-                            capture_output=True, text=True).stdout.strip()
-    baseline_src = export_source(args.baseline, work / "baseline")
+                            capture_output=True, text=True).stdout.strip() or "working tree"
+    baseline_src = args.baseline_src or export_source(args.baseline, work / "baseline")
     load_before = load_average()
     rows = []
     for repeat in range(args.repeats):
