@@ -52,6 +52,7 @@ def seathru(source: Path, args: list[str], log: Path) -> None:
 def run_once(name: str, source: Path, minutes: float, cameras: Path, truth: Path | None,
              work: Path, threads: int) -> dict:
     out = work / name
+    work.mkdir(parents=True, exist_ok=True)
     seathru(source, ["train", "--cameras", str(cameras), "--out", str(out / "train"),
                      "--checkpoint-dir", str(out / "checkpoints"), "--threads", str(threads),
                      "--max-minutes", str(minutes)], out.with_suffix(".train.log"))
