@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import subprocess
 import sys
 import tempfile
@@ -29,6 +28,10 @@ import pandas as pd
 from machine import cpu_name, load_average
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "src"))
+
+from seathru.io.evaluation import read_summary  # noqa: E402
+
 OUT = REPO / "benchmarks" / "results" / "sooner.md"
 BASELINE = "c9edca9"
 
@@ -52,7 +55,6 @@ def seathru(source: Path, args: list[str], log: Path) -> None:
 def run_once(name: str, source: Path, minutes: float, cameras: Path, truth: Path | None,
              work: Path, threads: int) -> dict:
     out = work / name
-    work.mkdir(parents=True, exist_ok=True)
     seathru(source, ["train", "--cameras", str(cameras), "--out", str(out / "train"),
                      "--checkpoint-dir", str(out / "checkpoints"), "--threads", str(threads),
                      "--max-minutes", str(minutes)], out.with_suffix(".train.log"))
@@ -65,16 +67,13 @@ def run_once(name: str, source: Path, minutes: float, cameras: Path, truth: Path
     if truth is not None:
         evaluate += ["--truth", str(truth)]
     seathru(REPO / "src", evaluate, out.with_suffix(".evaluate.log"))
-    metrics = pd.read_csv(out / "evaluate" / "metrics.csv")
-    log = out.with_suffix(".train.log").read_text().replace("\r", "\n")
-    steps = re.findall(r"trained (\d+) steps in ([\d.]+) s", log)
+    summary = read_summary(out / "evaluate" / "summary.json")
+    training = summary.training
     row = {"run": name, "budget_s": 60 * minutes,
-           "steps": int(steps[-1][0]) if steps else None,
-           "training_s": float(steps[-1][1]) if steps else None,
-           "psnr": float(metrics["psnr_linear"].mean())}
-    if "restored_psnr_linear" in metrics:
-        row["restored"] = float(pd.to_numeric(metrics["restored_psnr_linear"],
-                                              errors="coerce").mean())
+           "steps": training.steps if training else None,
+           "training_s": training.time_s if training else None,
+           "psnr": summary.means["psnr_linear"],
+           "restored": summary.means.get("restored_psnr_linear")}
     print(row, flush=True)
     return row
 
@@ -99,8 +98,10 @@ def main() -> None:
                  "pass --cameras")
     truth = args.truth if args.truth.is_dir() else None
     work = args.work or Path(tempfile.mkdtemp(prefix="bench_sooner_"))
+    work.mkdir(parents=True, exist_ok=True)
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
-                            capture_output=True, text=True).stdout.strip() or "working tree"
+                            capture_output=True, text=True).stdout.strip()
+    commit = f"{commit} (working tree)" if commit else "working tree"
     baseline_src = args.baseline_src or export_source(args.baseline, work / "baseline")
     load_before = load_average()
     rows = []
@@ -119,14 +120,14 @@ def main() -> None:
         "(`benchmarks/bench_sooner.py`)", "",
         f"Device: {cpu_name()}, {args.threads} training threads; load average before/after "
         f"{load_before} / {load_average()}. Camera set `{args.cameras}`; baseline commit "
-        f"{args.baseline}, current {commit} (working tree); each configuration run "
+        f"{args.baseline}, current {commit}; each configuration run "
         f"{args.repeats} time(s), one run at a time. Held-out PSNR on whole images (linear), "
         "all runs scored by the current evaluate step.", "",
         "| run | code | budget (s) | steps | training (s) | held-out PSNR (dB) "
         "| restored vs clean (dB) |", "|---|---|---|---|---|---|---|"]
     for row in rows:
         code = args.baseline if row["config"] == "baseline" else commit
-        restored = f"{row['restored']:.2f}" if pd.notna(row.get("restored")) else "—"
+        restored = f"{row['restored']:.2f}" if pd.notna(row["restored"]) else "—"
         lines.append(f"| {row['run']} | {code} | {row['budget_s']:.0f} | {row['steps']} | "
                      f"{row['training_s']:.0f} | {row['psnr']:.2f} | {restored} |")
     lines += ["", f"Mean held-out PSNR: baseline at {60 * args.minutes:.0f} s "
