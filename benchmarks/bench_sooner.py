@@ -12,6 +12,7 @@ training time. Usage::
 
     python benchmarks/bench_sooner.py [--cameras results/demo/poses/cameras.json] \\
         [--truth results/demo/simulate/truth] [--baseline c9edca9] [--minutes 3] [--repeats 1]
+    python benchmarks/bench_sooner.py --summarise-only --work DIR --repeats 2  # existing runs
 """
 
 from __future__ import annotations
@@ -67,13 +68,29 @@ def run_once(name: str, source: Path, minutes: float, cameras: Path, truth: Path
     if truth is not None:
         evaluate += ["--truth", str(truth)]
     seathru(REPO / "src", evaluate, out.with_suffix(".evaluate.log"))
-    summary = read_summary(out / "evaluate" / "summary.json")
+    return read_row(name, minutes, work)
+
+
+def water_errors(summary) -> str:
+    """Signed error of each fitted water parameter against the truth, per channel, in %."""
+    water = summary.truth.water if summary.truth else None
+    if water is None or not water.fitted:
+        return "—"
+    return "; ".join(f"{key} " + ", ".join(f"{100 * (fitted / true - 1):+.0f}" for fitted, true
+                                           in zip(water.fitted[key], water.truth[key]))
+                     for key in ("sigma_attn", "sigma_bs", "c_med"))
+
+
+def read_row(name: str, minutes: float, work: Path) -> dict:
+    """One run's figures from its evaluate step's ``summary.json``."""
+    summary = read_summary(work / name / "evaluate" / "summary.json")
     training = summary.training
     row = {"run": name, "budget_s": 60 * minutes,
            "steps": training.steps if training else None,
            "training_s": training.time_s if training else None,
            "psnr": summary.means["psnr_linear"],
-           "restored": summary.means.get("restored_psnr_linear")}
+           "restored": summary.means.get("restored_psnr_linear"),
+           "water": water_errors(summary)}
     print(row, flush=True)
     return row
 
@@ -92,6 +109,8 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--work", type=Path, default=None)
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--summarise-only", action="store_true",
+                        help="only write the table from the runs already in --work")
     args = parser.parse_args()
     if not args.cameras.is_file():
         sys.exit(f"{args.cameras}: camera file not found; run the demo first (make demo) or "
@@ -102,15 +121,17 @@ def main() -> None:
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
                             capture_output=True, text=True).stdout.strip()
     commit = f"{commit} (working tree)" if commit else "working tree"
-    baseline_src = args.baseline_src or export_source(args.baseline, work / "baseline")
+    baseline_src = args.baseline_src or (work / "baseline" / "src" if args.summarise_only
+                                         else export_source(args.baseline, work / "baseline"))
     load_before = load_average()
     rows = []
     for repeat in range(args.repeats):
         for name, source, minutes in (("baseline", baseline_src, args.minutes),
                                       ("current_half", REPO / "src", args.minutes / 2),
                                       ("current", REPO / "src", args.minutes)):
-            row = run_once(f"{name}_{repeat}", source, minutes, args.cameras, truth, work,
-                           args.threads)
+            row = read_row(f"{name}_{repeat}", minutes, work) if args.summarise_only else \
+                run_once(f"{name}_{repeat}", source, minutes, args.cameras, truth, work,
+                         args.threads)
             rows.append({**row, "config": name})
     table = pd.DataFrame(rows)
     mean = table.groupby("config")["psnr"].mean()
@@ -124,12 +145,13 @@ def main() -> None:
         f"{args.repeats} time(s), one run at a time. Held-out PSNR on whole images (linear), "
         "all runs scored by the current evaluate step.", "",
         "| run | code | budget (s) | steps | training (s) | held-out PSNR (dB) "
-        "| restored vs clean (dB) |", "|---|---|---|---|---|---|---|"]
+        "| restored vs clean (dB) | water against the truth (R, G, B, %) |",
+        "|---|---|---|---|---|---|---|---|"]
     for row in rows:
         code = args.baseline if row["config"] == "baseline" else commit
         restored = f"{row['restored']:.2f}" if pd.notna(row["restored"]) else "—"
         lines.append(f"| {row['run']} | {code} | {row['budget_s']:.0f} | {row['steps']} | "
-                     f"{row['training_s']:.0f} | {row['psnr']:.2f} | {restored} |")
+                     f"{row['training_s']:.0f} | {row['psnr']:.2f} | {restored} | {row['water']} |")
     lines += ["", f"Mean held-out PSNR: baseline at {60 * args.minutes:.0f} s "
               f"{mean['baseline']:.2f} dB; current at {30 * args.minutes:.0f} s "
               f"{mean['current_half']:.2f} dB, at {60 * args.minutes:.0f} s "
