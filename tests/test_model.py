@@ -11,7 +11,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seathru.nerf.fields import contract, grid_vertices, uncontract
+from seathru.nerf.fields import contract, grid_vertices, trilinear_lookup, uncontract
 from seathru.nerf.inference import render_frame
 from seathru.nerf.losses import (distortion_loss, reconstruction_loss, total_variation_3d,
                                  transmittance_prior)
@@ -216,6 +216,29 @@ def test_nearest_lookup_matches_grid_sample_nearest():
                                                align_corners=True).reshape(-1)
     assert torch.allclose(lookup_nearest(volume, g), expected)
 
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+@pytest.mark.parametrize("points", [1, 4096, 9001])
+def test_trilinear_lookup_matches_grid_sample_and_its_gradient_in_float64(threads, points):
+    gen = torch.Generator().manual_seed(points + threads)
+    volume = torch.rand(1, 2, 5, 6, 7, generator=gen, dtype=torch.float64, requires_grad=True)
+    g = torch.rand(points, 3, generator=gen, dtype=torch.float64) * 2.6 - 1.3  # some outside
+    weights = torch.rand(points, 2, generator=gen, dtype=torch.float64)
+    expected = torch.nn.functional.grid_sample(
+        volume, g.reshape(1, -1, 1, 1, 3), mode="bilinear", padding_mode="border",
+        align_corners=True).reshape(2, -1).t()
+    expected_grad, = torch.autograd.grad((expected * weights).sum(), volume)
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        values = trilinear_lookup(volume, g)
+        grad, = torch.autograd.grad((values * weights).sum(), volume)
+    finally:
+        torch.set_num_threads(before)
+    assert values.shape == (points, 2)
+    torch.testing.assert_close(values, expected, rtol=0, atol=1e-12)
+    torch.testing.assert_close(grad, expected_grad, rtol=0, atol=1e-12)
 
 # --------------------------------------------------------------------------------------- losses
 

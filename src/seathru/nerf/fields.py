@@ -156,6 +156,69 @@ def _resize_plane(plane: Tensor, size_hw: tuple[int, int]) -> Tensor:
 PLANE_AXES = ((0, 1), (0, 2), (1, 2))
 
 
+_GRID_SAMPLE_3D = dict(mode="bilinear", padding_mode="border", align_corners=True)
+_BORDER, _BILINEAR = 1, 0  # aten's enum values of padding_mode="border", mode="bilinear"
+
+
+def _split_for_threads(volume: Tensor, g: Tensor) -> tuple[Tensor, Tensor, int]:
+    # PyTorch's CPU kernel of grid_sample in 3D runs one thread per batch item, so a single
+    # volume read at many points uses one core: the points are split into one batch item per
+    # thread, reading the same (expanded, not copied) volume.
+    parts = torch.get_num_threads() if g.device.type == "cpu" and g.shape[0] >= 4096 else 1
+    pad = (-g.shape[0]) % parts
+    if pad:
+        g = torch.cat([g, g.new_zeros(pad, 3)])
+    return volume.expand(parts, *volume.shape[1:]), g.reshape(parts, -1, 1, 1, 3), pad
+
+
+class _TrilinearLookup(torch.autograd.Function):
+    """``grid_sample`` of a volume at points, forward on all threads; gradient for the volume
+    only (the points are sample positions, never trained)."""
+
+    @staticmethod
+    def forward(ctx, volume: Tensor, g: Tensor) -> Tensor:
+        batched, grid, pad = _split_for_threads(volume, g)
+        values = F.grid_sample(batched, grid, **_GRID_SAMPLE_3D)  # (parts, C, P/parts, 1, 1)
+        values = values.reshape(batched.shape[0], volume.shape[1], -1).permute(0, 2, 1)
+        values = values.reshape(-1, volume.shape[1])
+        ctx.save_for_backward(volume, g)
+        return values[:g.shape[0]] if pad else values
+
+    @staticmethod
+    def backward(ctx, grad: Tensor):
+        volume, g = ctx.saved_tensors
+        grad_volume, _ = torch.ops.aten.grid_sampler_3d_backward(
+            grad.t().reshape(1, volume.shape[1], -1, 1, 1).contiguous(), volume,
+            g.reshape(1, -1, 1, 1, 3), _BILINEAR, _BORDER, True, [True, False])
+        return grad_volume, None
+
+
+def trilinear_lookup(volume: Tensor, g: Tensor) -> Tensor:
+    """Trilinear values of a volume at grid coordinates, with border padding.
+
+    The same values as ``F.grid_sample(volume, g.reshape(1, -1, 1, 1, 3), mode="bilinear",
+    padding_mode="border", align_corners=True)``, but on every CPU thread (PyTorch's CPU
+    kernel parallelises over the batch only), and differentiable in ``volume`` only.
+
+    Args:
+        volume: (1, C, D, H, W) values at the grid vertices (x along W).
+        g: (P, 3) grid coordinates (x, y, z) in [-1, 1] (clamped to the border outside).
+
+    Returns:
+        (P, C) values.
+
+    Example:
+        >>> volume = torch.arange(8.0).reshape(1, 1, 2, 2, 2)
+        >>> trilinear_lookup(volume, torch.zeros(1, 3))  # the centre: the mean of the corners
+        tensor([[3.5000]])
+    """
+    g = g.to(volume.dtype)
+    if g.requires_grad:
+        values = F.grid_sample(volume, g.reshape(1, -1, 1, 1, 3), **_GRID_SAMPLE_3D)
+        return values.reshape(volume.shape[1], -1).t()
+    return _TrilinearLookup.apply(volume, g)
+
+
 class DensityGrid(nn.Module):
     """Raw density = coarse grid + fine grid (trilinear); density = exp(raw).
 
@@ -175,12 +238,7 @@ class DensityGrid(nn.Module):
         return [self.raw.shape[4], self.raw.shape[3], self.raw.shape[2]]
 
     def raw_at(self, g: Tensor) -> Tensor:
-        grid = g.reshape(1, -1, 1, 1, 3).to(self.raw.dtype)
-        fine = F.grid_sample(self.raw, grid, mode="bilinear", padding_mode="border",
-                             align_corners=True)
-        coarse = F.grid_sample(self.coarse, grid, mode="bilinear", padding_mode="border",
-                               align_corners=True)
-        return (fine + coarse).reshape(-1)
+        return (trilinear_lookup(self.raw, g) + trilinear_lookup(self.coarse, g)).reshape(-1)
 
     def forward(self, g: Tensor) -> Tensor:
         return trunc_exp(self.raw_at(g))

@@ -821,7 +821,7 @@ class Trainer:
         self._hold_refitted_water()
         params = [p for g in self.optimizer.param_groups for p in g["params"]
                   if p.grad is not None]
-        grad_norm = torch.nn.utils.clip_grad_norm_(params, float("inf"))
+        grad_norm = torch.nn.utils.get_total_norm([p.grad for p in params])
         if not bool(torch.isfinite(grad_norm)):
             self._rollback("non-finite gradient")
             return None
