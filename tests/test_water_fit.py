@@ -188,6 +188,41 @@ def test_noisy_dark_pixels_do_not_pull_the_backscatter_below_the_truth():
     assert np.all(error < 0.2), fit.sigma_bs          # the unraised bound: 99%, 30%, 31%
 
 
+
+def test_surfaces_placed_too_far_do_not_tighten_the_dark_pixel_bound():
+    # Surfaces seen from several ranges, one in ten black; plus 5% of dark pixels that the
+    # model placed 40% too far (each at its own spot, as no other view agrees with it): their
+    # backscatter is that of the shorter, true range, below the backscatter at their given one.
+    rng = np.random.default_rng(11)
+    attn, bs, c_med = (np.array(TRUE[k]) for k in KEYS)
+    surfaces, views = 1500, 6
+    spots = rng.uniform(-20, 20, size=(surfaces, 3))
+    clean = rng.uniform(0.05, 0.9, size=(surfaces, 3)) * (rng.random((surfaces, 1)) > 0.1)
+    directions = rng.standard_normal((surfaces * views, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    ranges = rng.uniform(0.5, 8.0, surfaces * views)
+    index = np.repeat(np.arange(surfaces), views)
+    origins = spots[index] - directions * ranges[:, None]
+    observed = clean[index] * np.exp(-attn * ranges[:, None]) \
+        + c_med * (1 - np.exp(-bs * ranges[:, None]))
+    misplaced = len(ranges) // 20
+    true_range = rng.uniform(0.5, 8.0, misplaced)
+    given = 1.4 * true_range
+    away = rng.standard_normal((misplaced, 3))
+    away /= np.linalg.norm(away, axis=1, keepdims=True)
+    far_origins = rng.uniform(200, 400, size=(misplaced, 3))        # spots of their own
+    origins = np.concatenate([origins, far_origins])
+    directions = np.concatenate([directions, away])
+    depth = np.concatenate([ranges, given])
+    observed = np.concatenate([observed, c_med * (1 - np.exp(-bs * true_range[:, None]))])
+    observed += 0.002 * rng.standard_normal(observed.shape)
+    data = surface_data(*(torch.from_numpy(a) for a in (origins, directions, observed, depth)),
+                        torch.ones(len(depth), dtype=torch.float64), voxel=0.05)
+    assert not isinstance(data, str)
+    fit = fit_water(data.ranges, data.observed, data.ids, data.groups, START, dark=data.dark)
+    error = np.array(fit.sigma_bs) / bs - 1
+    assert np.all(np.abs(error) < 0.1), error        # bound from every pixel: -16, -19, -24%
+
 KEYS = ("sigma_attn", "sigma_bs", "c_med")
 START = {"sigma_attn": 0.3, "sigma_bs": 0.3, "c_med": 0.3}
 
