@@ -117,6 +117,10 @@ class MediumConfig:
                                              "this (surfaces, not fog or open water)")
     refit_voxel: float = setting(0.005, help="refit: surface points are grouped in voxels of "
                                              "this share of the scene box diagonal")
+    interval_range_error: float = setting(
+        0.05, help="relative error of the model's depth that water.json's intervals allow for "
+                   "(the fit is redone on ranges with this much more error and the move widens "
+                   "the intervals; 3-5% on the demo against the true depth; 0 = exact depth)")
     open_water_opacity: float = setting(
         0.1, help="rays below this object opacity meet no surface: their pixel is the veiling "
                   "light; with open water in the photographs (seathru.radiometry.open_water), "

@@ -636,7 +636,8 @@ class Trainer:
         spread = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,
                                    colour_max=model.medium.colour_max,
                                    dark=data.dark if self.config.medium.dark_pixel_bound
-                                   else None)
+                                   else None,
+                                   range_error=self.config.medium.interval_range_error)
         return {"surface_fit": {k: getattr(fit, k) for k in WATER_KEYS},
                 "halfwidth95": spread.halfwidth, "determined": spread.determined,
                 "pixels": fit.pixels, "groups": fit.groups,
