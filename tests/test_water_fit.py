@@ -215,13 +215,25 @@ def test_surfaces_placed_too_far_do_not_tighten_the_dark_pixel_bound():
     directions = np.concatenate([directions, away])
     depth = np.concatenate([ranges, given])
     observed = np.concatenate([observed, c_med * (1 - np.exp(-bs * true_range[:, None]))])
+    opacity = np.ones(len(depth))
+    water = 500                                   # open water in view: it pins c_med
+    origins = np.concatenate([origins, np.zeros((water, 3))])
+    directions = np.concatenate([directions, np.tile([[0.0, 0.0, 1.0]], (water, 1))])
+    depth = np.concatenate([depth, np.full(water, 50.0)])
+    observed = np.concatenate([observed, np.tile(c_med, (water, 1))])
+    opacity = np.concatenate([opacity, np.full(water, 0.01)])
     observed += 0.002 * rng.standard_normal(observed.shape)
-    data = surface_data(*(torch.from_numpy(a) for a in (origins, directions, observed, depth)),
-                        torch.ones(len(depth), dtype=torch.float64), voxel=0.05)
+    rays = [torch.from_numpy(a) for a in (origins, directions, observed, depth, opacity)]
+    data = surface_data(*rays, voxel=0.05, open_water_opacity=0.1)
     assert not isinstance(data, str)
     fit = fit_water(data.ranges, data.observed, data.ids, data.groups, START, dark=data.dark)
     error = np.array(fit.sigma_bs) / bs - 1
     assert np.all(np.abs(error) < 0.1), error        # bound from every pixel: -16, -19, -24%
+    # without open water the bound is all that holds the backscatter: the tighter one, from
+    # every surface pixel, is kept
+    dry = surface_data(*(r[:-water] for r in rays), voxel=0.05)
+    assert torch.all(dry.dark[1] <= data.dark[1] + 1e-12)
+    assert torch.any(dry.dark[1] < data.dark[1] - 0.005)
 
 KEYS = ("sigma_attn", "sigma_bs", "c_med")
 START = {"sigma_attn": 0.3, "sigma_bs": 0.3, "c_med": 0.3}

@@ -88,19 +88,24 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
     ranged = ranged_groups(ranges, ids, groups)
     if int(ranged.sum()) < min_pixels:
         return f"only {int(ranged.sum())} surface pixels are seen over a spread of ranges"
-    # Only pixels of surfaces that several views place alike bound the backscatter: a dark
-    # pixel given too long a range (a surface the model placed behind its true place) bounds
-    # the backscatter by the lower one at its true range. On the survey demo (5% of the
-    # model's surface depths 30% too long or more) the bound from every pixel held blue
-    # backscatter 7-10% below the fit without it; from these pixels, 0-1%.
-    dark = dark_pixels(ranges[ranged], observed[ranged])
-    ids, groups = voxel_groups(points[ranged], voxel)
-    ranges, observed = ranges[ranged], observed[ranged]
     if open_water is None:
         water = opacity < open_water_opacity
     else:
         water = open_water & typical_open_water(rgb, open_water) if open_water_opacity > 0 \
             else torch.zeros_like(open_water)
+    # With open water in the data, which pins c_med and with it the backscatter, only pixels
+    # of surfaces that several views place alike bound the backscatter: a dark pixel given
+    # too long a range (a surface the model placed behind its true place) bounds it by the
+    # lower backscatter of its true range. On the survey demo (5% of the model's surface
+    # depths 30% too long or more) the bound from every pixel held blue backscatter 7-10%
+    # below the fit without it; from these pixels, 0-1%. Without open water the bound is all
+    # that holds the backscatter, and the tighter bound from every pixel errs the safe way:
+    # backscatter left in the restored image rather than too much taken out (on a small
+    # orbit, the looser bound made a restored view worse than the render with water).
+    dark = dark_pixels(ranges[ranged], observed[ranged]) if bool(water.any()) \
+        else dark_pixels(ranges, observed)
+    ids, groups = voxel_groups(points[ranged], voxel)
+    ranges, observed = ranges[ranged], observed[ranged]
     if bool(water.any()):
         ranges = torch.cat([ranges, torch.full((int(water.sum()),), math.inf,
                                                dtype=ranges.dtype)])
