@@ -432,8 +432,8 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     (:func:`data_splits`); without the open-water pixels; and, when the fit used the dark-pixel
     bound, without it (the bound is a heuristic, not data); with ``range_error``, on ranges
     given that much more relative error (log-normal per pixel, fixed seed). Error in the ranges
-    biases the fit (the attenuation up: on the simulator's exact depths of the survey demo
-    +2 to +4%, with 5% error +14 to +25%), and adding as much again moves it by about as much as
+    biases the fit (the attenuation up: on the simulator's exact ranges of the survey demo
+    +2 to +5%, with 5% error +18 to +39%), and adding as much again moves it by about as much as
     the error already there did (the first step of SIMEX, Cook and Stefanski 1994): that move
     is taken as a between-part variance ``d^2``. Each comparison gives a
     between-part variance by the method of moments (as in a random-effects meta-analysis):
