@@ -78,9 +78,11 @@ def rays_of_run(model, cameras, truth: Path, per_view: int, seed: int):
     return {k: torch.cat(v) for k, v in parts.items()}
 
 
-def bound_from_every_pixel(rays, depth, opacity, open_water):
-    keep = (opacity > 0.9) & torch.isfinite(depth) & ~open_water
-    return water_fit.dark_pixels(depth[keep], rays["rgb"][keep])
+def bound_from_every_pixel(rays, depth, opacity, open_water, voxel: float):
+    """The bound ``surface_data`` takes where no open water is used: from every surface pixel."""
+    return water_fit.surface_data(rays["origins"], rays["directions"], rays["rgb"], depth,
+                                  opacity, voxel, 0.9, open_water_opacity=0.0,
+                                  open_water=open_water).dark
 
 
 def refits(rays, scale: float, model, start: dict) -> dict:
@@ -99,7 +101,8 @@ def refits(rays, scale: float, model, start: dict) -> dict:
         results[name] = {
             "no bound": water_fit.fit_water(*args),
             "bound, every surface pixel": water_fit.fit_water(
-                *args, bound_from_every_pixel(rays, depth, opacity, open_water)),
+                *args, bound_from_every_pixel(rays, depth, opacity, open_water,
+                                              0.005 * diagonal)),
             "bound, surfaces placed alike (default)": water_fit.fit_water(*args, data.dark)}
     surface = ~open_water & (rays["opacity"] > 0.9) & torch.isfinite(rays["model"])
     ratio = (rays["model"][surface] / true_depth[surface]).numpy()
