@@ -5,9 +5,11 @@ A diagnostic, not a test. For trained runs of a simulated dive (each ``RUN/train
 and given two ranges: the model's median depth and the simulator's true range of the same pixel
 (the truth camera's pixel that sees the same direction). The refit of the training step
 (``water_fit.surface_data`` and ``fit_water``) is run on each, without the dark-pixel bound,
-with the bound from every surface pixel (the earlier default) and with the bound from the pixels
-of surfaces several views place alike (``surface_data``'s). Where the true depth gives the same
-water with and without a bound, a bound that moves the model-depth fit comes from depth error.
+with the bound from every surface pixel (what ``surface_data`` takes without open water) and with
+the bound from the pixels of surfaces several views place alike (what it takes with open water).
+Open water here is the pixels with no true surface (the training step takes it from the
+photographs). Where the true depth gives the same water with and without a bound, a bound that
+moves the model-depth fit comes from depth error.
 Usage::
 
     python benchmarks/bench_refit_true_depth.py --cameras results/demo/poses/cameras.json \\

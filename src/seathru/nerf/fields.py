@@ -163,7 +163,8 @@ _BORDER, _BILINEAR = 1, 0  # aten's enum values of padding_mode="border", mode="
 def _split_for_threads(volume: Tensor, g: Tensor) -> tuple[Tensor, Tensor, int]:
     # PyTorch's CPU kernel of grid_sample in 3D runs one thread per batch item, so a single
     # volume read at many points uses one core: the points are split into one batch item per
-    # thread, reading the same (expanded, not copied) volume.
+    # thread, reading the same (expanded, not copied) volume. Small reads stay whole: there
+    # the threads' start-up costs more than the work they share.
     parts = torch.get_num_threads() if g.device.type == "cpu" and g.shape[0] >= 4096 else 1
     pad = (-g.shape[0]) % parts
     if pad:

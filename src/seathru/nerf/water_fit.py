@@ -506,8 +506,7 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
                             dtype=ranges.dtype)
         noisier = torch.where(torch.isfinite(ranges), ranges * torch.exp(range_error * noise),
                               ranges)
-        part_ids, part_groups = _renumber(ids)
-        moved = fit_water(noisier, observed, part_ids, part_groups, start, steps, colour_max)
+        moved = fit_water(noisier, observed, ids, groups, start, steps, colour_max)
         between["range_error"] = torch.nan_to_num((_theta(moved) - whole[0]) ** 2, nan=0.0,
                                                   posinf=0.0)
     tau2 = torch.stack(list(between.values())).amax(0) if between \
