@@ -33,9 +33,9 @@ from seathru.io.cameras import CameraSet, Frame, every_nth_split, write_cameras
 from seathru.io.colmap import make_camera, undistortion
 from seathru.io.images import read_image, write_float_tiff
 from seathru.io.stored_views import (frame_source_camera, render_to_stored,
-                                     stored_points_on_frame)
+                                     stored_image_on_frame, stored_points_on_frame)
 from seathru.radiometry.colour import srgb_to_linear
-from seathru.radiometry.linearise import apply_colour
+from seathru.radiometry.linearise import apply_colour, resize_area
 from seathru.radiometry.stored_encoding import ingest_linear, stored_values
 
 GAINS = st.lists(st.floats(0.2, 5.0), min_size=3, max_size=3)
@@ -168,6 +168,48 @@ def test_render_goes_back_onto_the_distorted_stored_camera():
     expected = cv2.remap(stored.astype(np.float32), points[:, :1].astype(np.float32) - 0.5,
                          points[:, 1:].astype(np.float32) - 0.5, cv2.INTER_LINEAR)[:, 0]
     np.testing.assert_allclose(sampled, expected, atol=0.02)
+
+
+def _ray_texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """A smooth colour as a function of the ray direction (x/z, y/z): the same scene point has
+    the same colour on the distorted and on the undistorted camera."""
+    return np.stack([0.5 + 0.4 * np.sin(9 * x), 0.5 + 0.4 * np.cos(7 * y),
+                     0.5 + 0.3 * np.sin(6 * (x + y))], -1).astype(np.float32)
+
+
+def test_truth_goes_onto_the_undistorted_frame_and_open_water_stays_undefined():
+    width, height = 96, 72
+    camera = make_camera("SIMPLE_RADIAL", width, height, [80.0, 48.0, 36.0, 0.08])
+    warp = undistortion(camera)
+    frame = Frame(name="v", image="", width=warp.width, height=warp.height, fx=warp.fx,
+                  fy=warp.fy, cx=warp.cx, cy=warp.cy, c2w=np.eye(4).tolist(), near=0.1, far=1)
+    v, u = np.mgrid[0:height, 0:width] + 0.5
+    rays = camera.cam_from_img(np.stack([u.ravel(), v.ravel()], 1))
+    stored = _ray_texture(rays[:, 0], rays[:, 1]).reshape(height, width, 3)
+    fv, fu = np.mgrid[0:warp.height, 0:warp.width] + 0.5
+    expected = _ray_texture((fu - warp.cx) / warp.fx, (fv - warp.cy) / warp.fy)
+
+    on_frame = stored_image_on_frame(stored, frame, [camera])
+    assert on_frame.shape == expected.shape
+    assert np.abs(on_frame - expected).max() < 0.002
+    resized = resize_area(stored, (warp.width, warp.height))
+    assert np.abs(resized - expected).max() > 0.04       # what a resize alone gives
+
+    # an infinite range (open water) in the left 10 columns of the stored image
+    depth = np.where(u < 10, np.inf, 2.0).astype(np.float32)
+    depth_on_frame = stored_image_on_frame(depth, frame, [camera])
+    source_u = warp.map_x + 0.5
+    assert np.isnan(depth_on_frame[source_u < 9.5]).all()
+    assert np.isfinite(depth_on_frame[source_u > 11]).all()
+    np.testing.assert_allclose(depth_on_frame[source_u > 11], 2.0)
+
+    half = Frame(name="v", image="", width=warp.width // 2, height=warp.height // 2,
+                 fx=warp.fx / 2, fy=warp.fy / 2, cx=warp.cx / 2, cy=warp.cy / 2,
+                 c2w=np.eye(4).tolist(), near=0.1, far=1)
+    assert stored_image_on_frame(stored, half, [camera]).shape == (warp.height // 2,
+                                                                    warp.width // 2, 3)
+    # without source cameras (a pinhole dataset) the image is only resized
+    np.testing.assert_allclose(stored_image_on_frame(stored, frame, []), resized)
 
 
 # ------------------------------------------------------------ the step on an ingested dataset

@@ -29,11 +29,11 @@ import tifffile
 
 from seathru.errors import PipelineError
 from seathru.io.cameras import CameraSet, Frame
-from seathru.io.colmap import camera_at_size, make_camera, undistortion
+from seathru.io.colmap import Undistortion, camera_at_size, make_camera, undistortion
 from seathru.io.images import read_image
 from seathru.io.manifest import read_manifest
 from seathru.io.pose_report import read_pose_report
-from seathru.radiometry.linearise import orient
+from seathru.radiometry.linearise import orient, resize_area
 
 #: Relative tolerance on intrinsics when matching a frame to a source camera.
 INTRINSICS_RTOL = 1e-3
@@ -183,6 +183,24 @@ def render_to_stored(image: np.ndarray, frame: Frame, camera: pycolmap.Camera | 
                      borderValue=0)
 
 
+def _frame_undistortion(size: tuple[int, int], frame: Frame, candidates: list[pycolmap.Camera]
+                        ) -> tuple[pycolmap.Camera, Undistortion, float] | None:
+    """The source camera at ``size``, its undistortion, and the frame's size over the
+    undistortion's (a downscaled linear folder), for the source camera that gives ``frame``'s
+    pinhole camera; None when none does."""
+    for camera in candidates:
+        try:
+            scaled = camera_at_size(camera, *size)
+        except PipelineError:
+            continue
+        warp = undistortion(scaled)
+        ratio = frame.width / warp.width
+        if np.allclose([frame.height / warp.height, frame.fx, frame.fy, frame.cx, frame.cy],
+                       np.array([1.0, warp.fx, warp.fy, warp.cx, warp.cy]) * ratio, rtol=0.02):
+            return scaled, warp, ratio
+    return None
+
+
 def stored_points_on_frame(points: np.ndarray, size: tuple[int, int], frame: Frame,
                            candidates: list[pycolmap.Camera]) -> np.ndarray:
     """Points ``(N, 2)`` on the stored image of ``size = (width, height)`` to ``frame``'s image
@@ -196,21 +214,55 @@ def stored_points_on_frame(points: np.ndarray, size: tuple[int, int], frame: Fra
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     if not candidates:
         return points * np.array([frame.width / size[0], frame.height / size[1]])
-    for camera in candidates:
-        try:
-            scaled = camera_at_size(camera, *size)
-        except PipelineError:
-            continue
-        warp = undistortion(scaled)
-        ratio = frame.width / warp.width
-        if not np.allclose([frame.height / warp.height, frame.fx, frame.fy, frame.cx, frame.cy],
-                           np.array([1.0, warp.fx, warp.fy, warp.cx, warp.cy]) * ratio,
-                           rtol=0.02):
-            continue
-        if warp.map_x is None:
-            return points * ratio
-        rays = scaled.cam_from_img(points)
-        return np.stack([warp.fx * rays[:, 0] + warp.cx,
-                         warp.fy * rays[:, 1] + warp.cy], axis=1) * ratio
-    raise PipelineError(f"{frame.name}: no source camera of the poses step gives its camera; "
-                        "cannot place points of the stored image on it")
+    match = _frame_undistortion(size, frame, candidates)
+    if match is None:
+        raise PipelineError(f"{frame.name}: no source camera of the poses step gives its "
+                            "camera; cannot place points of the stored image on it")
+    scaled, warp, ratio = match
+    if warp.map_x is None:
+        return points * ratio
+    rays = scaled.cam_from_img(points)
+    return np.stack([warp.fx * rays[:, 0] + warp.cx,
+                     warp.fy * rays[:, 1] + warp.cy], axis=1) * ratio
+
+
+def stored_image_on_frame(image: np.ndarray, frame: Frame, candidates: list[pycolmap.Camera]
+                          ) -> np.ndarray:
+    """An image in the stored images' geometry (a simulator's truth) mapped onto ``frame``'s
+    camera the way the poses step mapped the training images: the source camera's
+    undistortion (bilinear), then an area resize to the frame's size.
+
+    A resize alone misplaces pixels wherever the poses step undistorted: COLMAP's undistorted
+    camera is a pixel or more smaller than the source, and the radial warp moves the corners
+    further. Pixels that are not finite (open water's infinite range) stay undefined: an output
+    pixel is NaN wherever the warp or the resize mixes in such a pixel.
+
+    Args:
+        image: ``(H, W)`` or ``(H, W, C)`` at the stored images' size.
+        frame: the camera file's frame; candidates: :func:`source_cameras`.
+
+    Returns:
+        ``(frame.height, frame.width[, C])`` float32; the image only area-resized when no
+        source camera gives the frame (none known, or a pinhole one).
+
+    Example::
+
+        clean = stored_image_on_frame(read_image(truth / "clean" / "v.tiff"), frame,
+                                      source_cameras(cameras))
+    """
+    image = np.asarray(image, dtype=np.float32)
+    size = (image.shape[1], image.shape[0])
+    finite = np.isfinite(image)
+    defined = finite if image.ndim == 2 else finite.all(axis=-1)
+    values = np.where(finite, image, 0.0).astype(np.float32)
+    weight = defined.astype(np.float32)
+    match = _frame_undistortion(size, frame, candidates) if candidates else None
+    if match is not None and match[1].map_x is not None:
+        warp = match[1]
+        values, weight = warp.warp_image(values), warp.warp_image(weight)
+    target = (frame.width, frame.height)
+    values, weight = resize_area(values, target), resize_area(weight, target)
+    covered = weight >= 1.0 - 1e-4
+    if values.ndim == 3:
+        covered = covered[..., None]
+    return np.where(covered, values, np.nan).astype(np.float32)
