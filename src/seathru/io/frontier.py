@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +35,9 @@ from seathru.errors import PipelineError
 from seathru.eval import frontier
 from seathru.eval.summary import TruthSummary
 from seathru.io.atomic import write_text
+from seathru.io.cameras import CameraSet
 from seathru.io.evaluation import read_truth_image
+from seathru.io.stored_views import source_cameras, stored_image_on_frame
 from seathru.io.training import read_snapshot_renders, read_snapshots, snapshot_path
 from seathru.io.water import read_truth_water
 from seathru.radiometry.linearise import block_average, resize_area
@@ -46,12 +49,16 @@ _HINT = "re-run the 'evaluate' step"
 
 
 def _truth_like(truth_dir: Path, kind: str, view: str, like: np.ndarray, downscale: int,
-                cache: dict) -> np.ndarray:
-    """The truth image of a view at a snapshot's resolution: block means at ``downscale``,
-    area-resized when the sizes still differ (a camera file whose images were resized)."""
+                cache: dict, on_frame: Callable[[np.ndarray, str], np.ndarray] | None
+                ) -> np.ndarray:
+    """The truth image of a view at a snapshot's resolution: mapped onto the view's camera
+    (``on_frame``, when the camera file is known), block means at ``downscale``, area-resized
+    when the sizes still differ (a camera file whose images were resized)."""
     key = (kind, view, like.shape[:2], downscale)
     if key not in cache:
         image = read_truth_image(truth_dir, kind, view)
+        if on_frame is not None:
+            image = on_frame(image, view)
         averaged = block_average(image, downscale)
         if averaged.shape[:2] != like.shape[:2]:
             averaged = resize_area(image, (like.shape[1], like.shape[0]))
@@ -60,16 +67,25 @@ def _truth_like(truth_dir: Path, kind: str, view: str, like: np.ndarray, downsca
 
 
 def frontier_table(train_dir: str | os.PathLike, truth_dir: str | os.PathLike | None = None,
-                   truth: TruthSummary | None = None) -> pd.DataFrame:
+                   truth: TruthSummary | None = None, cameras: CameraSet | None = None
+                   ) -> pd.DataFrame:
     """The rows of ``frontier.csv`` for one run (no rows when training took no snapshots).
 
     Args:
         train_dir: the train step's folder (``snapshots.csv``, ``snapshots/``).
         truth_dir: simulated dives: the simulate step's ``truth/``; with it, ``truth``: the
             final evaluation's comparison (its colour gain and metric scale are used).
+        cameras: the camera file the run trained on; with it the truth images go onto its
+            (undistorted) cameras as in the final evaluation, without it they are resized.
     """
     snapshots = read_snapshots(Path(train_dir))
     rows, cache = [], {}
+    on_frame = None
+    if cameras is not None:
+        frames, candidates = {f.name: f for f in cameras.frames}, source_cameras(cameras)
+
+        def on_frame(image: np.ndarray, view: str) -> np.ndarray:
+            return stored_image_on_frame(image, frames[view], candidates)
     scored = truth_dir is not None and truth is not None
     true_water = read_truth_water(Path(truth_dir) / "water.json").as_dict() if scored else None
     for snapshot in snapshots:
@@ -87,9 +103,9 @@ def frontier_table(train_dir: str | os.PathLike, truth_dir: str | os.PathLike | 
                 restored = frontier.snapshot_restored_psnr(
                     ((render["restored"],
                       _truth_like(Path(truth_dir), "clean", view, render["restored"],
-                                  downscale, cache),
+                                  downscale, cache, on_frame),
                       _truth_like(Path(truth_dir), "depth", view, render["restored"],
-                                  downscale, cache))
+                                  downscale, cache, on_frame))
                      for view, render in sorted(renders.items()) if "restored" in render), gain)
         rows.append(frontier.frontier_row(snapshot, downscale, restored, errors))
     table = pd.DataFrame(rows, columns=list(frontier.FRONTIER_COLUMNS))

@@ -140,11 +140,11 @@ def run(args: argparse.Namespace) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     write_metrics(args.out / "metrics.csv", table)
     write_summary(args.out / "summary.json", summary)
-    write_frontier(args.out / FRONTIER_NAME, frontier_table(args.train_dir, args.truth, truth))
+    write_frontier(args.out / FRONTIER_NAME,
+                   frontier_table(args.train_dir, args.truth, truth, cameras))
     if chart.get("source") != "none":
         write_json(args.out / "colour_chart.json", json_safe(chart))
-    log.info("%s: mean PSNR %.2f dB over %d views", dataset, table["psnr_linear"].mean(),
-             len(table))
+    log.info("%s: mean PSNR %.2f dB, %d views", dataset, table["psnr_linear"].mean(), len(table))
 
 
 def _colour_chart(cfg: Settings, cameras: CameraSet, args: argparse.Namespace) -> dict:
