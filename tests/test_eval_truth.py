@@ -52,14 +52,30 @@ def test_metric_scale_with_too_few_shared_cameras_uses_the_normalisation():
     assert scale.scale == 4.0 and "fewer than 3" in scale.method
 
 
-def test_pooled_gain_equals_one_fit_over_all_views():
+def test_pooled_gain_pools_the_views_and_ignores_undefined_pixels():
     rng = np.random.default_rng(0)
     predictions = [rng.random((6, 5, 3)) for _ in range(3)]
     targets = [p * GAIN + rng.normal(0, 0.01, p.shape) for p in predictions]
+    targets[0][0, 0] = np.inf                           # open water's range: left out
     pooled = truth.pooled_gain(zip(predictions, targets))
-    together = metrics.fit_channel_gain(np.concatenate(predictions), np.concatenate(targets))
+    keep = [np.isfinite(t).all(-1) for t in targets]
+    together = (sum(t[k].sum(0) for t, k in zip(targets, keep))
+                / sum(p[k].sum(0) for p, k in zip(predictions, keep)))
     np.testing.assert_allclose(pooled, together, rtol=1e-12)
     np.testing.assert_allclose(pooled, GAIN, rtol=0.02)
+
+
+def test_pooled_gain_is_not_pulled_low_by_the_renders_own_error():
+    """A render with zero-mean error (noise, blur) against exact truth: least squares puts the
+    error in its denominator and comes out low; the gain must not."""
+    rng = np.random.default_rng(2)
+    clean = [rng.uniform(0.05, 0.4, (128, 128, 3)) for _ in range(3)]
+    renders = [c + rng.normal(0, 0.1, c.shape) for c in clean]     # 3:1 signal to error
+    targets = [c * GAIN for c in clean]
+    pooled = truth.pooled_gain(zip(renders, targets))
+    least_squares = metrics.fit_channel_gain(np.concatenate(renders), np.concatenate(targets))
+    np.testing.assert_allclose(pooled, GAIN, rtol=0.01)
+    assert np.all(least_squares < 0.9 * GAIN)           # what a least-squares gain gives
 
 
 def test_view_truth_metrics_scores_defined_pixels_in_metres():

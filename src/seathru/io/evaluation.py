@@ -20,6 +20,7 @@ import dataclasses
 import os
 import types
 import typing
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +34,7 @@ from seathru.eval.summary import (VIEW_COLUMNS, EvaluationSummary, TruthSummary,
                                   metrics_table)
 from seathru.io.atomic import write_json, write_text
 from seathru.io.cameras import CameraSet, read_cameras
-from seathru.io.images import read_image
+from seathru.io.images import read_image, read_mask
 from seathru.io.jsonfile import json_safe, read_json
 from seathru.io.stored_views import source_cameras, stored_image_on_frame
 from seathru.io.water import WaterReport, read_truth_water
@@ -217,6 +218,20 @@ def resized_like(image: np.ndarray, like: np.ndarray) -> np.ndarray:
     return resize_area(image, (like.shape[1], like.shape[0]))
 
 
+def _images_and_water_truth(cameras: CameraSet, truth_dir: Path, frames: dict,
+                            candidates: list) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """``(image, truth with water)`` of every frame, one at a time, on the frame's camera; the
+    image NaN where its mask marks it invalid (clipped)."""
+    for frame in frames.values():
+        image = read_image(cameras.image_path(frame))[..., :3].astype(np.float32)
+        mask_path = cameras.mask_path(frame)
+        if mask_path is not None and mask_path.is_file():
+            image[~read_mask(mask_path)] = np.nan
+        water = stored_image_on_frame(read_truth_image(truth_dir, "water", frame.name), frame,
+                                      candidates)
+        yield image, water[..., :3]
+
+
 def truth_evaluation(truth_dir: Path, renders: Path, cameras: CameraSet, rows: list[dict],
                      water: WaterReport | None) -> TruthSummary:
     """Add the truth columns to ``rows`` (one per held-out view, ``view`` keyed); return the
@@ -249,10 +264,7 @@ def truth_evaluation(truth_dir: Path, renders: Path, cameras: CameraSet, rows: l
                                          candidates)
         return resized_like(on_frame, like)
 
-    # one view in memory at a time
-    renders_full = ((view, read_render(renders, view, "full")) for view in views)
-    gain = truth_eval.pooled_gain((full, truth("water", view, full))
-                                  for view, full in renders_full)
+    gain = truth_eval.pooled_gain(_images_and_water_truth(cameras, truth_dir, frames, candidates))
     for row in rows:
         view = row["view"]
         full = read_render(renders, view, "full")
