@@ -372,7 +372,7 @@ def test_surfaces_that_fade_with_range_are_evidence_even_when_not_determined(
     trainer = _evidence_trainer(medium="global")
     monkeypatch.setattr(trainer, "assess_water", lambda: {
         "surface_fit": {"sigma_attn": [surface_attn] * 3},
-        "determined": {"sigma_attn": [False] * 3}})
+        "fit_determined": {"sigma_attn": [False] * 3}})
     monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0)
     found = trainer.select_medium()["statistics"]["evidence_of_water"]
     assert any("surfaces seen over a range" in text for text in found) == evidence, found
@@ -386,7 +386,7 @@ def test_the_surface_fit_is_spared_when_other_evidence_shows_water(monkeypatch):
     for track_change in (tracks, None):
         trainer = _evidence_trainer(track_change, medium="global")
         monkeypatch.setattr(trainer, "assess_water", lambda: calls.append(1) or {
-            "surface_fit": {"sigma_attn": [2.0] * 3}, "determined": {"sigma_attn": [True] * 3}})
+            "surface_fit": {"sigma_attn": [2.0] * 3}, "fit_determined": {"sigma_attn": [True] * 3}})
         monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0)
         stats = trainer.select_medium()["statistics"]
         if track_change is not None:

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from seathru.nerf.water_fit import (cluster_variances, dark_pixels, fit_water, group_scores,
-                                     laplace_halfwidths, noise_allowance, projected_loss,
-                                     robust_halfwidths, surface_data, voxel_groups)
+from seathru.nerf.water_fit import (WaterFit, cluster_variances, dark_pixels, fit_water,
+                                     group_scores, interval_determined, laplace_halfwidths,
+                                     noise_allowance, projected_loss, robust_halfwidths,
+                                     surface_data, voxel_groups)
 
 TRUE = {"sigma_attn": [0.55, 0.25, 0.20], "sigma_bs": [0.45, 0.30, 0.25],
         "c_med": [0.08, 0.20, 0.30]}
@@ -379,3 +380,20 @@ def test_robust_intervals_allow_for_the_error_of_the_model_depth():
         assert "range_error" in told[-1][1].splits and "range_error" not in exact[-1][1].splits
     assert _coverage(told) >= 0.85, (_coverage(told), _coverage(exact))
     assert _coverage(told) > _coverage(exact) + 0.1, (_coverage(told), _coverage(exact))
+
+
+def test_a_trained_value_far_from_the_surface_fit_is_not_determined():
+    """The interval water.json writes is the half-width plus the trained value's distance to
+    the surface fit; a value is determined only where that interval is within 25% of it."""
+    fit = WaterFit([1.0, 1.0, 1.0], [0.5, 0.5, 0.5], [0.2, 0.2, 0.2], 0.0, 1000, 50)
+    half = {"sigma_attn": [0.05, 0.05, 0.05], "sigma_bs": [0.05, 0.05, float("inf")],
+            "c_med": [0.01, 0.01, 0.01]}
+    trained = {"sigma_attn": [1.1, 1.8, 0.7], "sigma_bs": [0.5, 0.45, 0.5],
+               "c_med": [0.2, 0.26, 0.2]}
+    flags = interval_determined(trained, fit, half)
+    # 0.05 + 0.1 <= 0.275; 0.05 + 0.8 > 0.45 (80% off, narrow fit); 0.05 + 0.3 > 0.175
+    assert flags["sigma_attn"] == [True, False, False]
+    # 0.05 <= 0.125; 0.05 + 0.05 <= 0.1125; no finite half-width
+    assert flags["sigma_bs"] == [True, True, False]
+    # 0.01 <= 0.05; 0.01 + 0.06 > 0.065
+    assert flags["c_med"] == [True, False, True]

@@ -40,8 +40,8 @@ from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruc
 from seathru.nerf.model import SeaThruModel
 from seathru.nerf.rays import RayBatch, RayDataset
 from seathru.nerf.medium import DIRECTIONAL_MODES
-from seathru.nerf.water_fit import (SurfaceData, fit_water, laplace_halfwidths,
-                                    robust_halfwidths, surface_data)
+from seathru.nerf.water_fit import (SurfaceData, fit_water, interval_determined,
+                                    laplace_halfwidths, robust_halfwidths, surface_data)
 
 CHECKPOINT_FORMAT = "seathru-train-checkpoint/1"
 WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
@@ -552,7 +552,7 @@ class Trainer:
         """How much the surfaces seen over a range of distances fade over ``depth`` by their
         own water fit (``assess_water``), and whether their attenuation is determined."""
         assessment = self.assess_water() or {}
-        determined = all(assessment.get("determined", {}).get("sigma_attn", [False]))
+        determined = all(assessment.get("fit_determined", {}).get("sigma_attn", [False]))
         return 1.0 - math.exp(-max(assessment.get("surface_fit", {}).get(
             "sigma_attn", [0.0])) * depth), determined
 
@@ -618,11 +618,14 @@ class Trainer:
         return record
 
     @torch.no_grad()
-    def assess_water(self) -> dict | None:
+    def assess_water(self, trained: dict | None = None) -> dict | None:
         """How well the images determine the trained water: a fit on the final geometry's
         surfaces and its robust 95% half-widths (``water_fit.robust_halfwidths``: statistical and
-        systematic parts), normalised units. None when the medium is neither global nor veiling (whose c_med is the mean
-        over directions) or there are too few surface pixels."""
+        systematic parts), normalised units; ``determined`` judges the interval around the
+        ``trained`` values (``water_fit.interval_determined``; default: the model's water),
+        ``fit_determined`` the surface fit's own half-widths. None when the medium is neither
+        global nor veiling (whose c_med is the mean over directions) or there are too few
+        surface pixels."""
         model = self.model
         if model.medium.mode not in ("global", "veiling"):
             return None
@@ -639,7 +642,9 @@ class Trainer:
                                    else None,
                                    range_error=self.config.medium.interval_range_error)
         return {"surface_fit": {k: getattr(fit, k) for k in WATER_KEYS},
-                "halfwidth95": spread.halfwidth, "determined": spread.determined,
+                "halfwidth95": spread.halfwidth, "fit_determined": spread.determined,
+                "determined": interval_determined(trained or model.water_parameters(), fit,
+                                                  spread.halfwidth),
                 "pixels": fit.pixels, "groups": fit.groups,
                 "effective_samples": spread.effective_samples}
 

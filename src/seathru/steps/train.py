@@ -138,8 +138,9 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
                           "threads": torch.get_num_threads()}
     save_model(out / "model.pt", export)
     directions = data.fixed_subset(8192, config.seed + 4).directions
-    report = WaterReport.from_parameters(model.water_parameters(directions),
-                                         float(cameras.scale), trainer.assess_water())
+    trained_water = model.water_parameters(directions)
+    report = WaterReport.from_parameters(trained_water, float(cameras.scale),
+                                         trainer.assess_water(trained_water))
     write_water(out / "water.json", report)
     warnings = [step_warning("train", "water_undetermined", report.undetermined_message(),
                              parameters=report.undetermined)] if report.undetermined else []
