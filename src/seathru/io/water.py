@@ -59,8 +59,8 @@ UNCERTAINTY_METHOD = (
     "surfaces (seathru.nerf.water_fit.robust_halfwidths) gives a cluster-robust statistical "
     "half-width plus a systematic one from how much parts of the data (near/far, the two sides "
     "of the scene, without open water, without the dark-pixel bound) disagree; the interval is "
-    "widened by the trained value's distance to that fit. A parameter whose half-width exceeds "
-    "25% of its value is not determined by the views")
+    "widened by the trained value's distance to that fit. A parameter whose interval reaches "
+    "more than 25% of its value either side is not determined by the views")
 
 
 @dataclass(frozen=True)
