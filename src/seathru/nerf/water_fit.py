@@ -525,9 +525,9 @@ def interval_determined(trained: dict, surface_fit: WaterFit, halfwidth: dict[st
 
     The trained value may have drifted from the surface fit since the last refit; the interval
     around it is then widened by that distance (``water.json``), and a value counts as
-    determined only where that widened half-width is at most ``max_relative`` of it. Judged on
-    the fit's half-width alone, values 40-80% off the truth on the water benchmark's orbits
-    were flagged as determined while their intervals spanned the truth.
+    determined only where that widened half-width is at most ``max_relative`` of it (judged on
+    the fit's half-width alone, values up to 81% off the truth on the water benchmark were
+    flagged as determined).
 
     Args:
         trained: ``{"sigma_attn": [3], "sigma_bs": [3], "c_med": [3]}`` trained values.
