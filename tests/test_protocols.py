@@ -147,12 +147,22 @@ def test_our_ssim_is_dmpix_ssim(seed):
 
 # ------------------------------------------------------------------------------ geometry back
 
-def test_render_goes_back_onto_the_distorted_stored_camera():
-    width, height = 96, 72
-    camera = make_camera("SIMPLE_RADIAL", width, height, [80.0, 48.0, 36.0, 0.08])
+WIDTH, HEIGHT = 96, 72
+
+
+def _distorted_source_and_frame():
+    """A distorted source camera of WIDTH x HEIGHT, its undistortion, and the pinhole frame the
+    poses step makes of it."""
+    camera = make_camera("SIMPLE_RADIAL", WIDTH, HEIGHT, [80.0, 48.0, 36.0, 0.08])
     warp = undistortion(camera)
     frame = Frame(name="v", image="", width=warp.width, height=warp.height, fx=warp.fx,
                   fy=warp.fy, cx=warp.cx, cy=warp.cy, c2w=np.eye(4).tolist(), near=0.1, far=1)
+    return camera, warp, frame
+
+
+def test_render_goes_back_onto_the_distorted_stored_camera():
+    camera, warp, frame = _distorted_source_and_frame()
+    width, height = WIDTH, HEIGHT
     found = frame_source_camera(frame, (width, height), [camera])
     assert found is not None and found.params.tolist() == camera.params.tolist()
     v, u = np.mgrid[0:height, 0:width] + 0.5
@@ -178,11 +188,8 @@ def _ray_texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def test_truth_goes_onto_the_undistorted_frame_and_open_water_stays_undefined():
-    width, height = 96, 72
-    camera = make_camera("SIMPLE_RADIAL", width, height, [80.0, 48.0, 36.0, 0.08])
-    warp = undistortion(camera)
-    frame = Frame(name="v", image="", width=warp.width, height=warp.height, fx=warp.fx,
-                  fy=warp.fy, cx=warp.cx, cy=warp.cy, c2w=np.eye(4).tolist(), near=0.1, far=1)
+    camera, warp, frame = _distorted_source_and_frame()
+    width, height = WIDTH, HEIGHT
     v, u = np.mgrid[0:height, 0:width] + 0.5
     rays = camera.cam_from_img(np.stack([u.ravel(), v.ravel()], 1))
     stored = _ray_texture(rays[:, 0], rays[:, 1]).reshape(height, width, 3)
