@@ -29,8 +29,8 @@ from seathru.eval.summary import MetricScale, TruthSummary, WaterComparison
 SIGMA_KEYS = ("sigma_attn", "sigma_bs")
 WATER_KEYS = (*SIGMA_KEYS, "c_med")
 COLOUR_GAIN_NOTE = ("per-channel gain: sum of the truth images with water over sum of the "
-                    "camera file's linear images (every view pooled), applied to restored "
-                    "renders and c_med")
+                    "camera file's linear images (every view pooled), applied to the renders "
+                    "and c_med")
 
 
 def camera_metric_scale(centres: Mapping[str, np.ndarray], truth_centres: Mapping[str, np.ndarray],

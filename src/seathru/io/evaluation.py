@@ -20,7 +20,7 @@ import dataclasses
 import os
 import types
 import typing
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -218,17 +218,30 @@ def resized_like(image: np.ndarray, like: np.ndarray) -> np.ndarray:
     return resize_area(image, (like.shape[1], like.shape[0]))
 
 
-def _images_and_water_truth(cameras: CameraSet, truth_dir: Path, frames: dict,
-                            candidates: list) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+def truth_on_frames(cameras: CameraSet) -> Callable[[np.ndarray, str], np.ndarray]:
+    """``(image, view) -> image`` that puts a simulator's truth image of ``view`` onto that
+    frame's camera the way the poses step put the training images there
+    (``stored_views.stored_image_on_frame``: the source camera's undistortion, then the frame's
+    size)."""
+    frames, candidates = {f.name: f for f in cameras.frames}, source_cameras(cameras)
+
+    def on_frame(image: np.ndarray, view: str) -> np.ndarray:
+        return stored_image_on_frame(image, frames[view], candidates)
+
+    return on_frame
+
+
+def _images_and_water_truth(cameras: CameraSet, truth_dir: Path,
+                            on_frame: Callable[[np.ndarray, str], np.ndarray]
+                            ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """``(image, truth with water)`` of every frame, one at a time, on the frame's camera; the
     image NaN where its mask marks it invalid (clipped)."""
-    for frame in frames.values():
+    for frame in cameras.frames:
         image = read_image(cameras.image_path(frame))[..., :3].astype(np.float32)
         mask_path = cameras.mask_path(frame)
         if mask_path is not None and mask_path.is_file():
             image[~read_mask(mask_path)] = np.nan
-        water = stored_image_on_frame(read_truth_image(truth_dir, "water", frame.name), frame,
-                                      candidates)
+        water = on_frame(read_truth_image(truth_dir, "water", frame.name), frame.name)
         yield image, water[..., :3]
 
 
@@ -255,16 +268,12 @@ def truth_evaluation(truth_dir: Path, renders: Path, cameras: CameraSet, rows: l
                             f"{missing[:3]}; the camera file and the simulation do not match")
     scale = truth_eval.camera_metric_scale(camera_centres(cameras), truth_centres, cameras.scale)
 
-    frames = {frame.name: frame for frame in cameras.frames}
-    candidates = source_cameras(cameras)
+    on_frame = truth_on_frames(cameras)
 
     def truth(kind: str, view: str, like: np.ndarray) -> np.ndarray:
-        # the truth is in the source cameras' geometry; the renders in the undistorted one
-        on_frame = stored_image_on_frame(read_truth_image(truth_dir, kind, view), frames[view],
-                                         candidates)
-        return resized_like(on_frame, like)
+        return resized_like(on_frame(read_truth_image(truth_dir, kind, view), view), like)
 
-    gain = truth_eval.pooled_gain(_images_and_water_truth(cameras, truth_dir, frames, candidates))
+    gain = truth_eval.pooled_gain(_images_and_water_truth(cameras, truth_dir, on_frame))
     for row in rows:
         view = row["view"]
         full = read_render(renders, view, "full")

@@ -36,8 +36,7 @@ from seathru.eval import frontier
 from seathru.eval.summary import TruthSummary
 from seathru.io.atomic import write_text
 from seathru.io.cameras import CameraSet
-from seathru.io.evaluation import read_truth_image
-from seathru.io.stored_views import source_cameras, stored_image_on_frame
+from seathru.io.evaluation import read_truth_image, truth_on_frames
 from seathru.io.training import read_snapshot_renders, read_snapshots, snapshot_path
 from seathru.io.water import read_truth_water
 from seathru.radiometry.linearise import block_average, resize_area
@@ -80,12 +79,7 @@ def frontier_table(train_dir: str | os.PathLike, truth_dir: str | os.PathLike | 
     """
     snapshots = read_snapshots(Path(train_dir))
     rows, cache = [], {}
-    on_frame = None
-    if cameras is not None:
-        frames, candidates = {f.name: f for f in cameras.frames}, source_cameras(cameras)
-
-        def on_frame(image: np.ndarray, view: str) -> np.ndarray:
-            return stored_image_on_frame(image, frames[view], candidates)
+    on_frame = None if cameras is None else truth_on_frames(cameras)
     scored = truth_dir is not None and truth is not None
     true_water = read_truth_water(Path(truth_dir) / "water.json").as_dict() if scored else None
     for snapshot in snapshots:
