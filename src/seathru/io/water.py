@@ -44,6 +44,7 @@ from typing import Any, Mapping
 from seathru.errors import PipelineError
 from seathru.io.atomic import write_json
 from seathru.io.jsonfile import read_json
+from seathru.nerf.water_interval import interval_halfwidth
 
 WATER_FORMAT = "seathru-water/1"
 WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
@@ -187,11 +188,10 @@ class WaterReport:
         interval, surface = {}, {}
         for key in WATER_KEYS:
             f = factor[key]
-            # the trained value may have drifted from the surface fit since the last refit
-            interval[key] = [[max(0.0, (c - h - abs(c - g)) * f), (c + h + abs(c - g)) * f]
-                             if math.isfinite(h) else [0.0, None]
-                             for c, h, g in zip(centre[key], u["halfwidth95"][key],
-                                                u["surface_fit"][key])]
+            widths = [interval_halfwidth(c, g, h) for c, h, g in
+                      zip(centre[key], u["halfwidth95"][key], u["surface_fit"][key])]
+            interval[key] = [[max(0.0, (c - w) * f), (c + w) * f] if math.isfinite(w)
+                             else [0.0, None] for c, w in zip(centre[key], widths)]
             surface[key] = [v * f for v in u["surface_fit"][key]]
         return {"method": UNCERTAINTY_METHOD, "interval95": interval,
                 "determined": u["determined"], "surface_fit": surface,

@@ -26,6 +26,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from seathru.nerf.water_interval import interval_halfwidth
+
 
 @dataclass
 class WaterFit:
@@ -521,13 +523,10 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
 
 def interval_determined(trained: dict, surface_fit: WaterFit, halfwidth: dict[str, list[float]],
                         max_relative: float = 0.25) -> dict[str, list[bool]]:
-    """Whether the views determine each trained water value, judged on the interval around it.
-
-    The trained value may have drifted from the surface fit since the last refit; the interval
-    around it is then widened by that distance (``water.json``), and a value counts as
-    determined only where that widened half-width is at most ``max_relative`` of it (judged on
-    the fit's half-width alone, values up to 81% off the truth on the water benchmark were
-    flagged as determined).
+    """Whether the views determine each trained water value, judged on the interval around it
+    (``water_interval.interval_halfwidth``): determined where that half-width is finite and at most
+    ``max_relative`` of the value (judged on the fit's half-width alone, values up to 81% off
+    the truth on the water benchmark were flagged as determined).
 
     Args:
         trained: ``{"sigma_attn": [3], "sigma_bs": [3], "c_med": [3]}`` trained values.
@@ -542,13 +541,10 @@ def interval_determined(trained: dict, surface_fit: WaterFit, halfwidth: dict[st
 
         flags = interval_determined(model.water_parameters(), fit, spread.halfwidth)
     """
-    result = {}
-    for name in NAMES:
-        result[name] = [bool(math.isfinite(h) and h + abs(float(c) - g) <= max_relative
-                             * abs(float(c)))
-                        for c, g, h in zip(trained[name], getattr(surface_fit, name),
-                                           halfwidth[name])]
-    return result
+    return {name: [bool(math.isfinite(h) and interval_halfwidth(float(c), g, h)
+                        <= max_relative * abs(float(c)))
+                   for c, g, h in zip(trained[name], getattr(surface_fit, name), halfwidth[name])]
+            for name in NAMES}
 
 
 def data_splits(ranges: Tensor, ids: Tensor, groups: int) -> dict[str, tuple[Tensor, ...]]:
