@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from seathru.nerf.water_fit import (WaterFit, cluster_variances, dark_pixels, fit_water,
-                                     group_scores, interval_determined, laplace_halfwidths,
-                                     noise_allowance, projected_loss, robust_halfwidths,
-                                     surface_data, voxel_groups)
+from seathru.nerf.water_fit import (WaterFit, brightness_weights, cluster_variances,
+                                     dark_pixels, fit_water, group_scores, interval_determined,
+                                     laplace_halfwidths, noise_allowance, projected_loss,
+                                     robust_halfwidths, surface_data, voxel_groups)
 
 TRUE = {"sigma_attn": [0.55, 0.25, 0.20], "sigma_bs": [0.45, 0.30, 0.25],
         "c_med": [0.08, 0.20, 0.30]}
@@ -75,6 +75,41 @@ def test_fit_converges_alike_whatever_the_brightness_of_the_images(monkeypatch):
         assert np.allclose(getattr(fits[1], key), getattr(fits[0], key), rtol=1e-4), key
     assert np.allclose(np.array(fits[1].c_med) / 0.02, fits[0].c_med, rtol=1e-4)
     assert evaluations[1] < 2 * evaluations[0] + 20, evaluations
+
+
+def test_brightness_weights_count_groups_above_the_median_less_in_proportion():
+    rng = np.random.default_rng(4)
+    clean = torch.from_numpy(rng.uniform(0.0, 1.0, size=(201, 3)))
+    c_med = torch.tensor([0.9, 0.05, 0.5], dtype=torch.float64)
+    weights = brightness_weights(clean, c_med, open_water_group=True)
+    assert torch.allclose(weights.mean(0), torch.ones(3, dtype=torch.float64))
+    level = clean.clone()
+    level[-1] = c_med                      # the open-water group is weighed at its veiling light
+    median = level.median(0).values
+    product = weights * torch.maximum(level, median)
+    assert torch.allclose(product, product[0].expand_as(product))  # 1 / max(J, median), scaled
+    for channel in range(3):
+        above = level[:, channel] > median[channel]
+        at_most = weights[~above, channel]
+        assert torch.allclose(at_most, at_most.max().expand_as(at_most))   # dark groups alike
+        assert bool((weights[above, channel] < at_most.max()).all())
+
+
+def test_a_balanced_fit_is_a_minimum_of_the_loss_it_weights():
+    # the weights travel with the fit into the intervals: at the balanced fit the weighted
+    # scores cancel; the unweighted ones need not
+    ranges, observed, ids, groups = _observations(np.random.default_rng(5), noise=0.02)
+    fit = fit_water(ranges, observed, ids, groups, START)
+    plain = fit_water(ranges, observed, ids, groups, START, balance_brightness=False)
+    assert fit.weights is not None and fit.weights.shape == (groups, 3) and plain.weights is None
+    theta = torch.tensor(fit.sigma_attn + fit.sigma_bs + fit.c_med, dtype=torch.float64)
+    weighted = group_scores(theta, ranges, observed, ids, groups, weights=fit.weights).sum(0)
+    unweighted = group_scores(theta, ranges, observed, ids, groups).sum(0)
+    assert float(weighted.abs().max()) < 0.05 * float(unweighted.abs().max()), \
+        (weighted, unweighted)
+    assert np.allclose(fit.sigma_attn, TRUE["sigma_attn"], rtol=0.1)
+    spread = laplace_halfwidths(fit, ranges, observed, ids, groups)
+    assert all(np.isfinite(spread.halfwidth["sigma_attn"]))
 
 
 def _fit_and_spread(ranges, observed, ids, groups):
@@ -397,3 +432,37 @@ def test_a_trained_value_far_from_the_surface_fit_is_not_determined():
     assert flags["sigma_bs"] == [True, True, False]
     # 0.01 <= 0.05; 0.01 + 0.06 > 0.065
     assert flags["c_med"] == [True, False, True]
+
+
+def test_balanced_refit_is_nearer_the_simulated_water_than_the_plain_one():
+    # The simulator's survey with its photographic textures, on its exact ranges: the image
+    # formation holds in every pixel, yet the surfaces of one voxel differ in texture and in
+    # pixel footprint from view to view. Unweighted, the bright ones set the attenuation high.
+    from seathru.io.textures import load_sample_textures
+    from seathru.sim import dive as dive_mod
+    from seathru.sim import sensor
+    from seathru.sim.water import water_params
+
+    spec = dive_mod.DiveSpec(views=10, width=160, height=120, path="survey",
+                             water=water_params("default"), seed=0, fov_deg=65.0,
+                             supersample=2, seabed_amplitude=0.08)
+    plan = dive_mod.plan_dive(spec, load_sample_textures())
+    origins, directions, ranges, observed = [], [], [], []
+    for view in dive_mod.render_views(spec, plan):
+        origin, rays = sensor.pixel_rays(plan.camera, view.c2w, 1)
+        directions.append(rays.reshape(-1, 3))
+        origins.append(np.broadcast_to(origin, directions[-1].shape))
+        ranges.append(view.range_m.reshape(-1).astype(np.float64))
+        observed.append(view.water.reshape(-1, 3).astype(np.float64))
+    origins, directions, ranges, observed = (torch.from_numpy(np.concatenate(a)) for a in
+                                             (origins, directions, ranges, observed))
+    water = ~torch.isfinite(ranges)
+    data = surface_data(origins, directions, observed, torch.where(water, torch.nan, ranges),
+                        (~water).double(), 0.05, 0.9, open_water_opacity=0.5, open_water=water)
+    truth = np.array(spec.water.sigma_attn)
+    errors = {}
+    for balance in (False, True):
+        fit = fit_water(data.ranges, data.observed, data.ids, data.groups, START, dark=data.dark,
+                        balance_brightness=balance)
+        errors[balance] = np.abs(np.array(fit.sigma_attn) / truth - 1)
+    assert errors[True].max() < 0.8 * errors[False].max(), errors

@@ -135,6 +135,9 @@ class MediumConfig:
     dark_pixel_bound: bool = setting(True, help="refits keep the backscatter below the darkest "
                                                 "pixels at each range (Sea-thru's dark-pixel "
                                                 "estimate)")
+    balance_brightness: bool = setting(
+        True, help="refits weight each surface voxel by its inverse clean colour, so that bright "
+                   "surfaces do not set the attenuation alone (false: every pixel alike)")
     refit_max_relative: float = setting(
         1.0, help="a refitted value replaces the current one only if its 95% half-width is "
                   "below this share of it (and the fit did not run to the edge of the "

@@ -591,7 +591,8 @@ class Trainer:
         before = model.water_parameters()
         fit = fit_water(data.ranges, data.observed, data.ids, data.groups, before,
                         self.config.medium.refit_steps, model.medium.colour_max,
-                        data.dark if self.config.medium.dark_pixel_bound else None)
+                        data.dark if self.config.medium.dark_pixel_bound else None,
+                        balance_brightness=self.config.medium.balance_brightness)
         spread = laplace_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups)
         accepted = refit_acceptance(fit, spread, before, model.medium.colour_max,
                                     self.config.medium.refit_max_relative)
@@ -635,7 +636,8 @@ class Trainer:
         fit = fit_water(data.ranges, data.observed, data.ids, data.groups,
                         model.water_parameters(), self.config.medium.refit_steps,
                         model.medium.colour_max,
-                        data.dark if self.config.medium.dark_pixel_bound else None)
+                        data.dark if self.config.medium.dark_pixel_bound else None,
+                        balance_brightness=self.config.medium.balance_brightness)
         spread = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,
                                    colour_max=model.medium.colour_max,
                                    dark=data.dark if self.config.medium.dark_pixel_bound
