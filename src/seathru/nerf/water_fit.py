@@ -314,8 +314,7 @@ def noise_allowance(fit: "WaterFit", ranges: Tensor, observed: Tensor, ids: Tens
     Returns:
         (3,) float64, to add to the dark values of :func:`dark_pixels`.
     """
-    theta = [torch.tensor(getattr(fit, k), dtype=torch.float64, device=ranges.device)
-             for k in ("sigma_attn", "sigma_bs", "c_med")]
+    theta = _theta(fit).to(ranges.device).split(3)
     residuals = _projected_residuals(*theta, ranges.double(), observed.double(), ids, groups)[0]
     centred = residuals - residuals.median(dim=0).values
     spread = 1.4826 * centred.abs().median(dim=0).values
@@ -361,22 +360,17 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
         fit = fit_water(z, rgb, ids, groups, {"sigma_attn": 0.2, "sigma_bs": 0.2, "c_med": 0.2})
     """
     weights = None
+    free = _fit_water(ranges, observed, ids, groups, start, steps, colour_max)
     if balance_brightness:
-        fit = _fit_water(ranges, observed, ids, groups, start, steps, colour_max)
         for _ in range(2):
-            weights = _weights_at(fit, ranges, observed, ids, groups)
-            fit = _fit_water(ranges, observed, ids, groups, _values(fit), steps, colour_max,
-                             weights=weights)
-        if dark is None:
-            return fit
-        start = _values(fit)
-    if dark is not None:
-        free = _fit_water(ranges, observed, ids, groups, start, steps, colour_max,
-                          weights=weights)
-        allowance = noise_allowance(free, ranges, observed, ids, groups)
-        dark = (dark[0], dark[1].to(allowance) + allowance)
-        start = _values(free)
-    return _fit_water(ranges, observed, ids, groups, start, steps, colour_max, dark,
+            weights = _weights_at(free, ranges, observed, ids, groups)
+            free = _fit_water(ranges, observed, ids, groups, _values(free), steps, colour_max,
+                              weights=weights)
+    if dark is None:
+        return free
+    allowance = noise_allowance(free, ranges, observed, ids, groups)
+    dark = (dark[0], dark[1].to(allowance) + allowance)
+    return _fit_water(ranges, observed, ids, groups, _values(free), steps, colour_max, dark,
                       dark_weight, weights)
 
 
@@ -387,8 +381,7 @@ def _values(fit: WaterFit) -> dict[str, list[float]]:
 def _weights_at(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tensor,
                 groups: int) -> Tensor:
     """:func:`brightness_weights` of the clean colours at ``fit``."""
-    theta = [torch.tensor(getattr(fit, k), dtype=torch.float64, device=ranges.device)
-             for k in NAMES]
+    theta = _theta(fit).to(ranges.device).split(3)
     clean = _projected_residuals(*theta, ranges.double(), observed.double(), ids, groups)[1]
     return brightness_weights(clean, theta[2], bool((~torch.isfinite(ranges)).any()))
 
