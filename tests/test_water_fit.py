@@ -466,3 +466,36 @@ def test_balanced_refit_is_nearer_the_simulated_water_than_the_plain_one():
                         balance_brightness=balance)
         errors[balance] = np.abs(np.array(fit.sigma_attn) / truth - 1)
     assert errors[True].max() < 0.8 * errors[False].max(), errors
+
+
+def test_interval_floor_widens_only_the_narrowest_half_widths():
+    ranges, observed, ids, groups = _small(5, noise=0.001)
+    fit = fit_water(ranges, observed, ids, groups, START)
+    plain = robust_halfwidths(fit, ranges, observed, ids, groups)
+    floored = robust_halfwidths(fit, ranges, observed, ids, groups, min_relative=0.05)
+    raised = 0
+    for k in KEYS:
+        for value, low, high in zip(getattr(fit, k), plain.halfwidth[k], floored.halfwidth[k]):
+            assert high == pytest.approx(max(low, 0.05 * value), rel=1e-9)
+            raised += low < 0.05 * value
+    assert raised > 0, "with pixel noise of 0.001 some half-widths should be below 5%"
+
+
+def test_grouping_comparison_is_the_move_of_the_fit_between_groupings():
+    ranges, observed, ids, groups = _small(6, groups=80, noise=0.003)
+    fit = fit_water(ranges, observed, ids, groups, START)
+    same = robust_halfwidths(fit, ranges, observed, ids, groups,
+                             regrouped=[(ranges, observed, ids, groups)])
+    assert max(same.splits["grouping"]) < 1e-6, "the same grouping cannot move the fit"
+    # pairs of surfaces of different colours merged into one group: a coarser grouping
+    merged = ids // 2
+    coarse = robust_halfwidths(fit, ranges, observed, ids, groups,
+                               regrouped=[(ranges, observed, merged, groups // 2)])
+    moved = fit_water(ranges, observed, merged, groups // 2, {k: getattr(fit, k) for k in KEYS},
+                      100)
+    expected = [1.96 * abs(a - b) for k in KEYS for a, b in zip(getattr(moved, k),
+                                                                 getattr(fit, k))]
+    assert coarse.splits["grouping"] == pytest.approx(expected, rel=1e-3, abs=1e-9)
+    assert max(coarse.splits["grouping"]) > 0.01
+    for k in KEYS:
+        assert all(c >= s - 1e-12 for c, s in zip(coarse.halfwidth[k], same.halfwidth[k]))

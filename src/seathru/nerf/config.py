@@ -121,6 +121,16 @@ class MediumConfig:
         0.05, help="relative error of the model's depth that water.json's intervals allow for "
                    "(the fit is redone on ranges with this much more error and the move widens "
                    "the intervals; 3-5% on the demo against the true depth; 0 = exact depth)")
+    interval_voxel_factors: list[float] = setting(
+        default_factory=lambda: [0.5, 2.0],
+        help="water.json's intervals also allow for the move of the fit when the surface "
+             "pixels are grouped in voxels this many times refit_voxel (where the model places "
+             "surfaces inconsistently between views the water depends on the grouping); "
+             "empty = not")
+    interval_floor: float = setting(
+        0.01, help="least 95% half-width of each water value in water.json, as a share of it: "
+                   "what the image values themselves are known to (black level, "
+                   "linearisation); open water alone gives c_med to 0.01%")
     open_water_opacity: float = setting(
         0.1, help="rays below this object opacity meet no surface: their pixel is the veiling "
                   "light; with open water in the photographs (seathru.radiometry.open_water), "

@@ -29,7 +29,7 @@ import copy
 import math
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Sequence
 
 import torch
 
@@ -558,17 +558,20 @@ class Trainer:
 
     # -------------------------------------------------------------------- loop
     @torch.no_grad()
-    def _surface_data(self, seed: int) -> SurfaceData | str:
+    def _surface_data(self, seed: int, voxel_factors: Sequence[float] = (1.0,)
+                      ) -> list[SurfaceData | str]:
+        """Surface data of one set of rendered training rays, grouped at ``medium.refit_voxel``
+        times each of ``voxel_factors``."""
         c, model = self.config, self.model
         rays = self.data.fixed_subset(c.medium.refit_rays, seed)
         rendered = self.render_batch(rays)
         diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
         open_water = refit_open_water_opacity(c.medium, rays.open_water is not None,
                                               self._progress())
-        return surface_data(rays.origins, rays.directions, rays.rgb, rendered["depth_median"],
-                            rendered["opacity"], c.medium.refit_voxel * diagonal,
-                            c.medium.refit_opacity, open_water_opacity=open_water,
-                            open_water=rays.open_water)
+        return [surface_data(rays.origins, rays.directions, rays.rgb, rendered["depth_median"],
+                             rendered["opacity"], factor * c.medium.refit_voxel * diagonal,
+                             c.medium.refit_opacity, open_water_opacity=open_water,
+                             open_water=rays.open_water) for factor in voxel_factors]
 
     @torch.no_grad()
     def refit_water(self) -> dict:
@@ -585,7 +588,7 @@ class Trainer:
         if model.medium.mode not in ("global", "veiling"):
             return {**record, "skipped": f"medium mode is {model.medium.mode}"}
         started = time.perf_counter()
-        data = self._surface_data(self.config.seed + 5 + len(self.water_refits))
+        data = self._surface_data(self.config.seed + 5 + len(self.water_refits))[0]
         if isinstance(data, str):
             return {**record, "skipped": data}
         before = model.water_parameters()
@@ -630,19 +633,22 @@ class Trainer:
         model = self.model
         if model.medium.mode not in ("global", "veiling"):
             return None
-        data = self._surface_data(self.config.seed + 97)
+        medium = self.config.medium
+        data, *regrouped = self._surface_data(
+            self.config.seed + 97, (1.0, *medium.interval_voxel_factors))
         if isinstance(data, str):
             return {"skipped": data}
         fit = fit_water(data.ranges, data.observed, data.ids, data.groups,
-                        model.water_parameters(), self.config.medium.refit_steps,
-                        model.medium.colour_max,
-                        data.dark if self.config.medium.dark_pixel_bound else None,
-                        balance_brightness=self.config.medium.balance_brightness)
+                        model.water_parameters(), medium.refit_steps, model.medium.colour_max,
+                        data.dark if medium.dark_pixel_bound else None,
+                        balance_brightness=medium.balance_brightness)
         spread = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,
                                    colour_max=model.medium.colour_max,
-                                   dark=data.dark if self.config.medium.dark_pixel_bound
-                                   else None,
-                                   range_error=self.config.medium.interval_range_error)
+                                   dark=data.dark if medium.dark_pixel_bound else None,
+                                   range_error=medium.interval_range_error,
+                                   min_relative=medium.interval_floor,
+                                   regrouped=[(d.ranges, d.observed, d.ids, d.groups)
+                                              for d in regrouped if not isinstance(d, str)])
         return {"surface_fit": {k: getattr(fit, k) for k in WATER_KEYS},
                 "halfwidth95": spread.halfwidth, "fit_determined": spread.determined,
                 "determined": interval_determined(trained or model.water_parameters(), fit,

@@ -19,6 +19,7 @@ disagreement between parts of the data, which holds most of a NeRF geometry's er
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from statistics import NormalDist
 
@@ -485,7 +486,10 @@ def laplace_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Ten
 def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tensor,
                       groups: int, max_relative: float = 0.25, colour_max: float = 1.5,
                       dark: tuple[Tensor, Tensor] | None = None, steps: int = 100,
-                      min_groups: int = 20, range_error: float = 0.0) -> WaterUncertainty:
+                      min_groups: int = 20, range_error: float = 0.0,
+                      min_relative: float = 0.0,
+                      regrouped: Sequence[tuple[Tensor, Tensor, Tensor, int]] = ()
+                      ) -> WaterUncertainty:
     """95% intervals of the fitted water that hold model error: a cluster-robust statistical
     part and a systematic part from how much parts of the data disagree.
 
@@ -509,7 +513,11 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     biases the fit (the attenuation up: on the simulator's exact ranges of the survey demo
     +2 to +5%, with 5% error +18 to +39%), and adding as much again moves it by about as much as
     the error already there did (the first step of SIMEX, Cook and Stefanski 1994): that move
-    is taken as a between-part variance ``d^2``. Each comparison gives a
+    is taken as a between-part variance ``d^2``. With ``regrouped``, the same pixels grouped at
+    other voxel sizes are refitted too, and the largest move is another ``d^2``: which pixels
+    count as one surface is a modelling choice, and where surfaces are placed inconsistently
+    between views (no open water, surfaces at a narrow spread of ranges) the answer depends on
+    it. Each comparison gives a
     between-part variance by the method of moments (as in a random-effects meta-analysis):
     ``tau^2 = max(0, d^2 - var_a - var_b) / 2`` for two disjoint halves differing by ``d``,
     ``max(0, d^2 - (var_part - var_whole))`` for a part against the whole, ``d^2`` for the
@@ -535,6 +543,12 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
         min_groups: a part with fewer voxel groups is not refitted (its comparison is left out).
         range_error: relative error of the ranges (a NeRF's depth: 3-5% robust spread against
             the truth on the demo); 0 leaves the comparison out (exact ranges).
+        min_relative: least half-width, as a share of the value. Thousands of open-water pixels
+            give ``c_med`` a statistical half-width of 0.01%, far below what the image values
+            themselves are known to (black level, linearisation, the colour gain that relates
+            them to another measurement: of the order of 1%).
+        regrouped: ``(ranges, observed, ids, groups)`` of the same rays grouped at other voxel
+            sizes (:func:`surface_data`); empty leaves the comparison out.
 
     Returns:
         half-widths and flags per parameter and channel; ``statistical`` and ``systematic``
@@ -586,9 +600,15 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
                           balance_brightness=balance)
         between["range_error"] = torch.nan_to_num((_theta(moved) - whole[0]) ** 2, nan=0.0,
                                                   posinf=0.0)
+    moves = [_theta(fit_water(*other, start, steps, colour_max, balance_brightness=balance))
+             - whole[0] for other in regrouped if whole is not None and other[3] >= min_groups]
+    if moves:
+        between["grouping"] = torch.nan_to_num(torch.stack(moves).pow(2).amax(0), nan=0.0,
+                                               posinf=0.0)
     tau2 = torch.stack(list(between.values())).amax(0) if between \
         else torch.zeros_like(statistical)
-    half = (1.96 * (statistical + tau2).sqrt()).tolist()
+    half = [max(h, min_relative * abs(v)) for h, v in
+            zip((1.96 * (statistical + tau2).sqrt()).tolist(), _theta(fit).tolist())]
     result = _uncertainty(fit, half, max_relative, _used_groups(ids, groups), "robust")
     result.statistical = _by_name((1.96 * statistical.sqrt()).tolist())
     result.systematic = _by_name((1.96 * tau2.sqrt()).tolist())
