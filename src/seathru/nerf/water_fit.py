@@ -531,7 +531,7 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
 
     A direction the data do not curve gives an infinite half-width in every parameter it
     touches; a parameter whose half-width exceeds ``max_relative`` of its value is flagged as
-    not determined. Costs up to 7 warm-started refits and their Hessians (1-7 s for 65k rays
+    not determined. Costs up to 9 warm-started refits and their Hessians (1-7 s for 65k rays
     on one CPU thread).
 
     Args:
