@@ -9,9 +9,9 @@ without them (``refit_at=[]``, ``veiling_light_init=false``). Per parameter and 
 whether the interval holds the truth; whether a parameter outside 5% was flagged as not
 determined; restored-vs-clean PSNR (linear) on the held-out views, beside the full render's.
 Beside water.json's intervals, the robust ones (``water_fit.robust_halfwidths``) recomputed on
-the final model's surfaces as the train step's assessment builds them
-(``bench_water_intervals.assess_model``), around the trained value widened by its distance to
-that surface fit.
+the final model's surfaces with the function's defaults (``bench_water_intervals.assess_model``:
+without the train step's allowances for range error, grouping and the 1% floor), around the
+trained value widened by its distance to that surface fit.
 
     python benchmarks/bench_water.py [--views 16 --width 160 --height 120] [--minutes 3]
         [--waters default,turbid,...] [--paths orbit,transect,survey] [--jobs 2]
@@ -233,7 +233,8 @@ def write_results(rows: list[dict], args, seconds: float, machine: str | None = 
              f"cameras for {args.minutes:g} min each (1 CPU thread each, {args.jobs} run(s) at a time); "
              "errors per channel (R, G, B); interval: 95% from water.json's uncertainty; "
              "`?` = flagged as not determined by the views (water.json); robust: "
-             "`water_fit.robust_halfwidths` recomputed on the final model's surfaces, around "
+             "`water_fit.robust_halfwidths` recomputed on the final model's surfaces with its "
+             "defaults (no allowance for range error, grouping or the 1% floor), around "
              "the trained value widened by its distance to that fit."
              + (f" Extra train flags: `{args.train_args}`." if args.train_args else ""), ""]
     for variant in dict.fromkeys(r["variant"] for r in rows):
