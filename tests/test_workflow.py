@@ -375,3 +375,29 @@ def test_each_source_reaches_its_images_and_poses(tmp_path):
         assert value(argv("poses", dataset), "--source") == "colmap"
     assert value(argv("ingest", "dive_raw"), "--kind") == "raw"
     assert value(argv("ingest", "sim"), "--subdir") == "raw"
+
+
+def test_steps_find_the_seathru_command_without_an_activated_environment(tmp_path):
+    """`.venv/bin/snakemake` with the environment not on PATH: the steps still find `seathru`
+    (they failed with "seathru: command not found")."""
+    import numpy as np
+    from PIL import Image
+
+    images = tmp_path / "two"
+    images.mkdir()
+    for name in ("a.png", "b.png"):
+        Image.fromarray(np.full((16, 16, 3), 90, np.uint8)).save(images / name)
+    sheet = tmp_path / "sheet.tsv"
+    sheet.write_text(f"dataset\tsource\tpath\toptions\tsweep\ntwo\timages\t{images}\t\t\n")
+    bin_dir = str(Path(sys.executable).parent)
+    path = os.pathsep.join(p for p in os.environ["PATH"].split(os.pathsep)
+                           if p and Path(p).resolve() != Path(bin_dir).resolve())
+    result = subprocess.run(
+        [sys.executable, "-m", "snakemake", "--snakefile", str(REPO_ROOT / "workflow" / "Snakefile"),
+         "--directory", str(tmp_path), "--configfile", str(REPO_ROOT / "config" / "config.yaml"),
+         "--config", f"datasets={sheet}", "--cores", "1", "results/two/ingest"],
+        cwd=tmp_path, env=dict(os.environ, PATH=path), capture_output=True, text=True,
+        timeout=300)
+    log = (tmp_path / "logs" / "two" / "ingest.log").read_text()
+    assert "command not found" not in log + result.stderr
+    assert "usable image(s)" in log, log   # the step ran and refused two images
