@@ -393,8 +393,8 @@ def test_steps_find_the_seathru_command_without_an_activated_environment(tmp_pat
     path = os.pathsep.join(p for p in os.environ["PATH"].split(os.pathsep)
                            if p and Path(p).resolve() != Path(bin_dir).resolve())
     result = subprocess.run(
-        [sys.executable, "-m", "snakemake", "--snakefile", str(REPO_ROOT / "workflow" / "Snakefile"),
-         "--directory", str(tmp_path), "--configfile", str(REPO_ROOT / "config" / "config.yaml"),
+        [sys.executable, "-m", "snakemake",
+         "--snakefile", str(REPO_ROOT / "workflow" / "Snakefile"), "--directory", str(tmp_path), "--configfile", str(REPO_ROOT / "config" / "config.yaml"),
          "--config", f"datasets={sheet}", "--cores", "1", "results/two/ingest"],
         cwd=tmp_path, env=dict(os.environ, PATH=path), capture_output=True, text=True,
         timeout=300)

@@ -562,7 +562,8 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
         low = [v - h for v, h in zip(fit.sigma_attn, spread.halfwidth["sigma_attn"])]
     """
     ranges, observed = ranges.double(), observed.double()
-    statistical = cluster_variances(_theta(fit), ranges, observed, ids, groups, fit.weights)
+    theta = _theta(fit)
+    statistical = cluster_variances(theta, ranges, observed, ids, groups, fit.weights)
     start = _values(fit)
     balance = fit.weights is not None
 
@@ -577,7 +578,7 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
                                                    part_fit.weights)
 
     everything = torch.ones_like(ranges, dtype=torch.bool)
-    whole = (_theta(fit), statistical) if dark is None else refit(everything)
+    whole = (theta, statistical) if dark is None else refit(everything)
     between: dict[str, Tensor] = {}
     for name, keeps in data_splits(ranges, ids, groups).items():
         a, b = (refit(keeps[0]), refit(keeps[1])) if len(keeps) == 2 \
@@ -590,7 +591,7 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
             tau2 = (a[0] - b[0]) ** 2 - (a[1] - b[1]).clamp_min(0.0)
         between[name] = torch.nan_to_num(tau2, nan=0.0, posinf=0.0).clamp_min(0.0)
     if dark is not None and whole is not None:
-        between["dark_bound"] = (whole[0] - _theta(fit)) ** 2
+        between["dark_bound"] = (whole[0] - theta) ** 2
     if range_error > 0 and whole is not None:
         noise = torch.randn(ranges.shape, generator=torch.Generator().manual_seed(0),
                             dtype=ranges.dtype)
@@ -600,15 +601,16 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
                           balance_brightness=balance)
         between["range_error"] = torch.nan_to_num((_theta(moved) - whole[0]) ** 2, nan=0.0,
                                                   posinf=0.0)
-    moves = [_theta(fit_water(*other, start, steps, colour_max, balance_brightness=balance))
-             - whole[0] for other in regrouped if whole is not None and other[3] >= min_groups]
+    moves = [] if whole is None else [
+        _theta(fit_water(*other, start, steps, colour_max, balance_brightness=balance)) - whole[0]
+        for other in regrouped if other[3] >= min_groups]
     if moves:
         between["grouping"] = torch.nan_to_num(torch.stack(moves).pow(2).amax(0), nan=0.0,
                                                posinf=0.0)
     tau2 = torch.stack(list(between.values())).amax(0) if between \
         else torch.zeros_like(statistical)
     half = [max(h, min_relative * abs(v)) for h, v in
-            zip((1.96 * (statistical + tau2).sqrt()).tolist(), _theta(fit).tolist())]
+            zip((1.96 * (statistical + tau2).sqrt()).tolist(), theta.tolist())]
     result = _uncertainty(fit, half, max_relative, _used_groups(ids, groups), "robust")
     result.statistical = _by_name((1.96 * statistical.sqrt()).tolist())
     result.systematic = _by_name((1.96 * tau2.sqrt()).tolist())
