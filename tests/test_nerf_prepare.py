@@ -109,3 +109,27 @@ def test_open_water_brighter_upwards_has_a_direction_spread_and_uniform_water_no
     assert flat < 0.02
     assert open_water_direction_spread(frames, graded, masks) > 5 * flat
     assert open_water_direction_spread(frames, uniform, [np.zeros((48, 64), bool)] * 2) == 0.0
+
+
+def test_uniform_clear_water_with_a_dark_red_channel_has_no_direction_spread():
+    """Clear blue water extinguishes red (c_med 0.016 on the oceanic II survey): the red
+    channel's noise, and a faint tint towards the hazy seabed, must not read as a veiling light
+    that changes with direction (the spread is a share of the whole colour's brightness)."""
+    from seathru.nerf.config import MediumConfig
+    from seathru.nerf.prepare import open_water_direction_spread
+    from seathru.nerf.rays import frame_rays
+
+    frames = _frames(2)
+    masks = [np.ones((48, 64), bool), np.ones((48, 64), bool)]
+    rng = np.random.default_rng(7)
+    blue_water = np.array([0.016, 0.11, 0.25])
+    images = []
+    for frame in frames:
+        down = -frame_rays(frame)[1].numpy().reshape(48, 64, 3)[..., 1]
+        red_tint = np.zeros((48, 64, 3))
+        red_tint[..., 0] = 0.01 * down         # red changes with direction, G and B do not
+        images.append(blue_water + red_tint + rng.normal(0, 0.002, (48, 64, 3)))
+    spread = open_water_direction_spread(frames, images, masks)
+    assert spread < MediumConfig().auto_veiling_spread / 3
+    per_channel = float(np.max([np.std(im[..., 0]) for im in images]) / blue_water[0])
+    assert per_channel > MediumConfig().auto_veiling_spread     # what a per-channel share saw

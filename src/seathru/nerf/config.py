@@ -191,9 +191,10 @@ class MediumConfig:
                   "orbit in clear water)")
     auto_veiling_spread: float = setting(
         0.1, help="auto: the water starts as veiling (else global) when the open water's "
-                  "colour changes with view direction by more than this share of it (the "
-                  "spread of a linear fit of colour on direction over the training images; "
-                  "measured 0.28 on d3_reef, 0.05 on the uniform water of the survey demo)")
+                  "colour changes with view direction by more than this share of its "
+                  "brightness (the spread of a linear fit of colour on direction over the "
+                  "training images; measured 0.27 on d3_reef, 0.045 on the uniform water of "
+                  "the survey demo, 0.01-0.04 on the other simulated surveys)")
 
 
 @dataclass

@@ -183,10 +183,13 @@ def open_water_share(water_masks, masks=None) -> float:
 def open_water_direction_spread(frames, images, water_masks, max_pixels: int = 200_000,
                                 seed: int = 0) -> float:
     """How much the open water's colour changes with view direction: the standard deviation of
-    a per-channel linear fit of colour on the ray direction over the open-water pixels,
-    relative to their mean colour (the largest channel). Uniform water gives the noise level
-    (about 0); real open water is brighter towards the surface (0.28 on d3_reef; 0.05 on the survey
-    demo, whose simulated water is uniform but whose open water borders hazy seabed).
+    a per-channel linear fit of colour on the ray direction over the open-water pixels, as a
+    share of the water's brightness (both as lengths of RGB vectors). Uniform water gives the
+    noise level (about 0); real open water is brighter towards the surface (0.27 on d3_reef;
+    0.045 on the survey demo, whose simulated water is uniform but whose open water borders
+    hazy seabed). Measured against the whole colour, not channel by channel: a channel the
+    water nearly extinguishes (red in clear blue water, 0.016) would turn its noise into a
+    spread of 0.12 and start a uniform water as veiling.
 
     Args:
         frames: the training frames; images: their linear images (H, W, 3); water_masks:
@@ -213,8 +216,8 @@ def open_water_direction_spread(frames, images, water_masks, max_pixels: int = 2
     design = np.concatenate([np.ones((len(dirs), 1)), dirs], axis=1)
     coefficients, *_ = np.linalg.lstsq(design, rgb, rcond=None)
     predicted = design @ coefficients
-    mean = np.maximum(rgb.mean(0), 1e-6)
-    return float((predicted.std(0) / mean).max())
+    brightness = max(float(np.linalg.norm(rgb.mean(0))), 1e-6)
+    return float(np.linalg.norm(predicted.std(0)) / brightness)
 
 
 def seed_everything(seed: int) -> None:
