@@ -194,7 +194,7 @@ class MediumConfig:
                   "colour changes with view direction by more than this share of its "
                   "brightness (the spread of a linear fit of colour on direction over the "
                   "training images; measured 0.27 on d3_reef, 0.045 on the uniform water of "
-                  "the survey demo, 0.01-0.04 on the other simulated surveys)")
+                  "the survey demo, 0.004-0.05 on the other simulated surveys)")
 
 
 @dataclass

@@ -187,9 +187,9 @@ def open_water_direction_spread(frames, images, water_masks, max_pixels: int = 2
     share of the water's brightness (both as lengths of RGB vectors). Uniform water gives the
     noise level (about 0); real open water is brighter towards the surface (0.27 on d3_reef;
     0.045 on the survey demo, whose simulated water is uniform but whose open water borders
-    hazy seabed). Measured against the whole colour, not channel by channel: a channel the
-    water nearly extinguishes (red in clear blue water, 0.016) would turn its noise into a
-    spread of 0.12 and start a uniform water as veiling.
+    hazy seabed). Measured against the whole colour, not channel by channel, so that the noise
+    of a channel the water nearly extinguishes (red in clear blue water) does not read as a
+    veiling light that changes with direction (`docs/water.md`).
 
     Args:
         frames: the training frames; images: their linear images (H, W, 3); water_masks:
