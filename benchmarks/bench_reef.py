@@ -11,7 +11,11 @@ Reads finished workflow runs of a real dive (default: the d3_reef runs of
 - the slope of log colour against range along COLMAP tracks in the input images and in the
   restored renders (``evaluate/summary.json`` ``track_colour_slope`` where the evaluate step
   wrote it; goal: the restored slope at least 70% smaller);
-- held-out PSNR.
+- held-out PSNR;
+- fog in front of the tracked surfaces: the object opacity each track observation's ray gathers
+  before 0.8 of its COLMAP point's range (``seathru.io.tracks.opacity_in_front``), mean over
+  all observations and over the farthest quarter. The restored view renders the object field
+  alone, so fog there is part of the restored colour, the more the longer the range.
 
 Usage::
 
@@ -59,6 +63,24 @@ def open_water_scores(run: Path, cameras_path: Path) -> dict:
             "empty_share": empty / water if water else float("nan")}
 
 
+def fog_scores(run: Path, cameras_path: Path) -> dict:
+    import torch
+
+    from seathru.io.model import load_model
+    from seathru.io.tracks import SPARSE_DIR, opacity_in_front, track_observations
+
+    cameras = read_cameras(cameras_path)
+    model_path = run / "train" / "model.pt"
+    if not (cameras.root / SPARSE_DIR).is_dir() or not model_path.is_file():
+        return {"fog_all": None, "fog_far": None}
+    torch.set_num_threads(1)
+    obs = track_observations(cameras, cameras.root / SPARSE_DIR)
+    with torch.no_grad():
+        fog = opacity_in_front(load_model(model_path), cameras, obs)
+    far = obs.ranges >= np.quantile(obs.ranges, 0.75)
+    return {"fog_all": float(fog.mean()), "fog_far": float(fog[far].mean())}
+
+
 def describe(run: Path, cameras_path: Path) -> dict:
     selection = json.loads((run / "train" / "selection.json").read_text())
     summary_path = run / "evaluate" / "summary.json"
@@ -67,7 +89,7 @@ def describe(run: Path, cameras_path: Path) -> dict:
     return {"run": run.name, "chosen": selection.get("final_mode", selection.get("chosen")),
             "capacity": (selection.get("capacity") or {}).get("chosen"),
             "evidence": stats.get("evidence_of_water", []),
-            **open_water_scores(run, cameras_path),
+            **open_water_scores(run, cameras_path), **fog_scores(run, cameras_path),
             "psnr": (summary.get("means") or {}).get("psnr_linear"),
             "tracks": summary.get("track_colour_slope")}
 
@@ -95,11 +117,13 @@ def main() -> None:
              "poses, each preset trained for its budget on a 2-core CPU). Open water: held-out "
              "pixels that show open water in the photograph (smooth, reaching the top of the "
              f"frame); empty: rendered with object opacity below {EMPTY_OPACITY:g} (goal >= "
-             "90%). Track slope: change of log colour per normalised unit of range along "
-             "COLMAP tracks, input photographs vs restored renders (goal: >= 70% smaller).", "",
+             "90%). Track slope: change of log colour per unit of range (COLMAP's) along "
+             "COLMAP tracks, input photographs vs restored renders (goal: >= 70% smaller). Fog: "
+             "object opacity in front of the tracked surfaces (before 0.8 of the point's "
+             "range), all observations / the farthest quarter.", "",
              "| run | capacity | medium | open water (% of pixels) | of it empty (%) | "
-             "held-out PSNR (dB) | track slope input (R, G, B) | restored | reduction |",
-             "|---" * 9 + "|"]
+             "held-out PSNR (dB) | track slope input (R, G, B) | restored | reduction | fog (%) |",
+             "|---" * 10 + "|"]
     for row in rows:
         tracks = (row["tracks"] or {}).get("all_views") or {}
         lines.append(
@@ -107,7 +131,8 @@ def main() -> None:
             f"{_fmt(row['open_water_share'], 1, 100)} | {_fmt(row['empty_share'], 1, 100)} | "
             f"{_fmt(row['psnr'])} | {', '.join(_fmt(v) for v in tracks.get('input', {}).get('slope', [])) or '—'} | "
             f"{', '.join(_fmt(v) for v in tracks.get('restored', {}).get('slope', [])) or '—'} | "
-            f"{', '.join(_fmt(v, 0, 100) + '%' for v in tracks.get('reduction', [])) or '—'} |")
+            f"{', '.join(_fmt(v, 0, 100) + '%' for v in tracks.get('reduction', [])) or '—'} | "
+            f"{_fmt(row['fog_all'], 1, 100)} / {_fmt(row['fog_far'], 1, 100)} |")
     lines += ["", "Evidence of water per run (selection.json):", ""]
     lines += [f"- {row['run']}: {'; '.join(row['evidence']) or 'none'}" for row in rows]
     args.out.write_text("\n".join(lines) + "\n")

@@ -187,3 +187,22 @@ def test_restored_colours_come_from_the_ray_of_each_observations_pixel(tmp_path,
         _, dirs = camera_rays_np(frame.c2w_array, frame.fx, frame.fy, frame.cx, frame.cy,
                                  frame.width, frame.height)
         np.testing.assert_allclose(colour, dirs[row * frame.width + col], atol=1e-6)
+
+
+def test_opacity_in_front_stops_each_ray_short_of_its_points_range(tmp_path, monkeypatch):
+    """A stand-in model whose opacity is the far bound it is given: each observation's ray ends
+    at the share of its point's range, in the camera file's normalised units."""
+    cameras, points = _scene(tmp_path)
+    model = SimpleNamespace(images={i + 1: SimpleNamespace(name=f"v{i}.png") for i in range(3)},
+                            points3D={k: SimpleNamespace(xyz=p, track=SimpleNamespace(elements=[
+                                SimpleNamespace(image_id=i) for i in (1, 2, 3)]))
+                                for k, p in enumerate(points)})
+    monkeypatch.setattr(tracks_io, "read_model", lambda path: model)
+    obs = tracks_io.track_observations(cameras, tmp_path / "sparse")
+
+    def render_rays(model, origins, directions, near, far, chunk=8192):
+        return {"opacity": far.clone()}
+
+    monkeypatch.setattr("seathru.nerf.inference.render_rays", render_rays)
+    opacity = tracks_io.opacity_in_front(None, cameras, obs, share=0.7)
+    np.testing.assert_allclose(opacity, 0.7 * obs.ranges * cameras.scale, rtol=1e-6)

@@ -110,15 +110,17 @@ def track_observations(cameras: CameraSet, model_dir: Path, max_points: int = 20
                              ranges[found], observed[found], held_out[found])
 
 
-def restored_colours(model, cameras: CameraSet, obs: TrackObservations,
-                     chunk: int = 8192) -> np.ndarray:
-    """(N, 3) restored (water removed) colour the model renders at each observation's pixel
-    (the ray through the pixel's centre, as ``seathru.nerf.rays.camera_rays_np``)."""
+def observation_rays(cameras: CameraSet, obs: TrackObservations):
+    """The ray through each observation's pixel centre (as ``seathru.nerf.rays.camera_rays_np``),
+    one frame at a time.
+
+    Yields:
+        ``(rows, origins, directions, near, far)``: ``rows`` (n,) indices into ``obs``;
+        origins and directions (n, 3) float32 tensors in the camera file's frame; near and far
+        (n,) float32 tensors, the frame's bounds.
+    """
     import torch
 
-    from seathru.nerf.inference import render_rays
-
-    colours = np.zeros((len(obs.rows), 3), np.float32)
     for index, frame in enumerate(cameras.frames):
         here = np.flatnonzero(obs.frames == index)
         if here.size == 0:
@@ -130,13 +132,42 @@ def restored_colours(model, cameras: CameraSet, obs: TrackObservations,
         directions = camera @ c2w[:3, :3].T
         directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
         origins = np.broadcast_to(c2w[:3, 3], directions.shape)
-        count = here.size
-        rendered = render_rays(model, torch.from_numpy(origins.astype(np.float32)),
-                               torch.from_numpy(directions.astype(np.float32)),
-                               torch.full((count,), float(frame.near)),
-                               torch.full((count,), float(frame.far)), chunk)
-        colours[here] = rendered["restored"].numpy()
+        yield (here, torch.from_numpy(origins.astype(np.float32)),
+               torch.from_numpy(directions.astype(np.float32)),
+               torch.full((here.size,), float(frame.near)),
+               torch.full((here.size,), float(frame.far)))
+
+
+def restored_colours(model, cameras: CameraSet, obs: TrackObservations,
+                     chunk: int = 8192) -> np.ndarray:
+    """(N, 3) restored (water removed) colour the model renders at each observation's pixel."""
+    from seathru.nerf.inference import render_rays
+
+    colours = np.zeros((len(obs.rows), 3), np.float32)
+    for here, origins, directions, near, far in observation_rays(cameras, obs):
+        colours[here] = render_rays(model, origins, directions, near, far, chunk)["restored"].numpy()
     return colours
+
+
+def opacity_in_front(model, cameras: CameraSet, obs: TrackObservations, share: float = 0.8,
+                     chunk: int = 8192) -> np.ndarray:
+    """(N,) object opacity the model gathers on each observation's ray before ``share`` of the
+    range of its COLMAP point: fog or floaters in front of the surface.
+
+    The restored view renders the object field alone, so whatever the object field holds in
+    front of a surface (often water colour standing in for backscatter the medium misses) is
+    part of the restored colour, more of it the longer the range.
+    """
+    import torch
+
+    from seathru.nerf.inference import render_rays
+
+    opacity = np.zeros(len(obs.rows), np.float32)
+    for here, origins, directions, near, _ in observation_rays(cameras, obs):
+        before = torch.from_numpy((share * obs.ranges[here] * cameras.scale).astype(np.float32))
+        opacity[here] = render_rays(model, origins, directions, near,
+                                    torch.maximum(before, near * 1.001), chunk)["opacity"].numpy()
+    return opacity
 
 
 def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None = None,
