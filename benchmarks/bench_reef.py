@@ -126,11 +126,13 @@ def main() -> None:
              "|---" * 10 + "|"]
     for row in rows:
         tracks = (row["tracks"] or {}).get("all_views") or {}
+        input_slope, restored_slope = (
+            ", ".join(_fmt(v) for v in tracks.get(part, {}).get("slope", [])) or "—"
+            for part in ("input", "restored"))
         lines.append(
             f"| {row['run']} | {row['capacity'] or '—'} | {row['chosen']} | "
             f"{_fmt(row['open_water_share'], 1, 100)} | {_fmt(row['empty_share'], 1, 100)} | "
-            f"{_fmt(row['psnr'])} | {', '.join(_fmt(v) for v in tracks.get('input', {}).get('slope', [])) or '—'} | "
-            f"{', '.join(_fmt(v) for v in tracks.get('restored', {}).get('slope', [])) or '—'} | "
+            f"{_fmt(row['psnr'])} | {input_slope} | {restored_slope} | "
             f"{', '.join(_fmt(v, 0, 100) + '%' for v in tracks.get('reduction', [])) or '—'} | "
             f"{_fmt(row['fog_all'], 1, 100)} / {_fmt(row['fog_far'], 1, 100)} |")
     lines += ["", "Evidence of water per run (selection.json):", ""]

@@ -145,7 +145,8 @@ def restored_colours(model, cameras: CameraSet, obs: TrackObservations,
 
     colours = np.zeros((len(obs.rows), 3), np.float32)
     for here, origins, directions, near, far in observation_rays(cameras, obs):
-        colours[here] = render_rays(model, origins, directions, near, far, chunk)["restored"].numpy()
+        rendered = render_rays(model, origins, directions, near, far, chunk)
+        colours[here] = rendered["restored"].numpy()
     return colours
 
 
