@@ -12,6 +12,9 @@ Reads finished workflow runs of a real dive (default: the d3_reef runs of
   restored renders (``evaluate/summary.json`` ``track_colour_slope`` where the evaluate step
   wrote it; goal: the restored slope at least 70% smaller);
 - held-out PSNR;
+- the same reduction for the nearest 90% of the tracks and for the farthest 10% (by each
+  track's median range): the far tracks' ranges spread the most, so they weigh most in the
+  pooled slope, and there the restoration divides by the smallest transmittance;
 - fog in front of the tracked surfaces: the object opacity each track observation's ray gathers
   before 0.8 of its COLMAP point's range (``seathru.io.tracks.opacity_in_front``), mean over
   all observations and over the farthest quarter. The restored view renders the object field
@@ -63,22 +66,36 @@ def open_water_scores(run: Path, cameras_path: Path) -> dict:
             "empty_share": empty / water if water else float("nan")}
 
 
-def fog_scores(run: Path, cameras_path: Path) -> dict:
+def track_scores(run: Path, cameras_path: Path) -> dict:
+    """Fog in front of the tracked surfaces, and the slope reduction of the nearest 90% of
+    tracks against the farthest 10% (by each track's median range)."""
     import torch
 
+    from seathru.eval.track_slope import colour_slope_summary
     from seathru.io.model import load_model
-    from seathru.io.tracks import SPARSE_DIR, opacity_in_front, track_observations
+    from seathru.io.tracks import (SPARSE_DIR, opacity_in_front, restored_colours,
+                                   track_observations)
 
     cameras = read_cameras(cameras_path)
     model_path = run / "train" / "model.pt"
     if not (cameras.root / SPARSE_DIR).is_dir() or not model_path.is_file():
-        return {"fog_all": None, "fog_far": None}
+        return {"fog_all": None, "fog_far": None, "reduction_near": None, "reduction_far": None}
     torch.set_num_threads(1)
     obs = track_observations(cameras, cameras.root / SPARSE_DIR)
+    model = load_model(model_path)
     with torch.no_grad():
-        fog = opacity_in_front(load_model(model_path), cameras, obs)
+        fog = opacity_in_front(model, cameras, obs)
+        restored = restored_colours(model, cameras, obs)
     far = obs.ranges >= np.quantile(obs.ranges, 0.75)
-    return {"fog_all": float(fog.mean()), "fog_far": float(fog[far].mean())}
+    _, track = np.unique(obs.track_ids, return_inverse=True)
+    track_range = np.array([np.median(obs.ranges[track == k]) for k in range(track.max() + 1)])
+    far_track = track_range[track] > np.quantile(track_range, 0.9)
+    reductions = {}
+    for name, keep in (("near", ~far_track), ("far", far_track)):
+        summary = colour_slope_summary(obs.track_ids[keep], obs.ranges[keep],
+                                       obs.observed[keep], restored[keep])
+        reductions[f"reduction_{name}"] = summary.get("reduction")
+    return {"fog_all": float(fog.mean()), "fog_far": float(fog[far].mean()), **reductions}
 
 
 def describe(run: Path, cameras_path: Path) -> dict:
@@ -89,7 +106,7 @@ def describe(run: Path, cameras_path: Path) -> dict:
     return {"run": run.name, "chosen": selection.get("final_mode", selection.get("chosen")),
             "capacity": (selection.get("capacity") or {}).get("chosen"),
             "evidence": stats.get("evidence_of_water", []),
-            **open_water_scores(run, cameras_path), **fog_scores(run, cameras_path),
+            **open_water_scores(run, cameras_path), **track_scores(run, cameras_path),
             "psnr": (summary.get("means") or {}).get("psnr_linear"),
             "tracks": summary.get("track_colour_slope")}
 
@@ -99,6 +116,10 @@ def _fmt(value, digits=2, scale=1.0) -> str:
         return f"{float(value) * scale:.{digits}f}"
     except (TypeError, ValueError):
         return "—"
+
+
+def _percentages(values) -> str:
+    return ", ".join(_fmt(v, 0, 100) + "%" for v in values) if values else "—"
 
 
 def main() -> None:
@@ -120,10 +141,12 @@ def main() -> None:
              "90%). Track slope: change of log colour per unit of range (COLMAP's) along "
              "COLMAP tracks, input photographs vs restored renders (goal: >= 70% smaller). Fog: "
              "object opacity in front of the tracked surfaces (before 0.8 of the point's "
-             "range), all observations / the farthest quarter.", "",
+             "range), all observations / the farthest quarter. Reduction by range: the nearest "
+             "90% of tracks / the farthest 10% (each track's median range).", "",
              "| run | capacity | medium | open water (% of pixels) | of it empty (%) | "
-             "held-out PSNR (dB) | track slope input (R, G, B) | restored | reduction | fog (%) |",
-             "|---" * 10 + "|"]
+             "held-out PSNR (dB) | track slope input (R, G, B) | restored | reduction | fog (%) | "
+             "reduction, nearest 90% / farthest 10% of tracks |",
+             "|---" * 11 + "|"]
     for row in rows:
         tracks = (row["tracks"] or {}).get("all_views") or {}
         input_slope, restored_slope = (
@@ -133,8 +156,9 @@ def main() -> None:
             f"| {row['run']} | {row['capacity'] or '—'} | {row['chosen']} | "
             f"{_fmt(row['open_water_share'], 1, 100)} | {_fmt(row['empty_share'], 1, 100)} | "
             f"{_fmt(row['psnr'])} | {input_slope} | {restored_slope} | "
-            f"{', '.join(_fmt(v, 0, 100) + '%' for v in tracks.get('reduction', [])) or '—'} | "
-            f"{_fmt(row['fog_all'], 1, 100)} / {_fmt(row['fog_far'], 1, 100)} |")
+            f"{_percentages(tracks.get('reduction'))} | "
+            f"{_fmt(row['fog_all'], 1, 100)} / {_fmt(row['fog_far'], 1, 100)} | "
+            f"{_percentages(row['reduction_near'])} / {_percentages(row['reduction_far'])} |")
     lines += ["", "Evidence of water per run (selection.json):", ""]
     lines += [f"- {row['run']}: {'; '.join(row['evidence']) or 'none'}" for row in rows]
     args.out.write_text("\n".join(lines) + "\n")
