@@ -71,7 +71,7 @@ def track_scores(run: Path, cameras_path: Path) -> dict:
     tracks against the farthest 10% (by each track's median range)."""
     import torch
 
-    from seathru.eval.track_slope import colour_slope_summary
+    from seathru.eval.track_slope import colour_slope_summary, far_tracks
     from seathru.io.model import load_model
     from seathru.io.tracks import (SPARSE_DIR, opacity_in_front, restored_colours,
                                    track_observations)
@@ -87,9 +87,7 @@ def track_scores(run: Path, cameras_path: Path) -> dict:
         fog = opacity_in_front(model, cameras, obs)
         restored = restored_colours(model, cameras, obs)
     far = obs.ranges >= np.quantile(obs.ranges, 0.75)
-    _, track = np.unique(obs.track_ids, return_inverse=True)
-    track_range = np.array([np.median(obs.ranges[track == k]) for k in range(track.max() + 1)])
-    far_track = track_range[track] > np.quantile(track_range, 0.9)
+    far_track = far_tracks(obs.track_ids, obs.ranges)
     reductions = {}
     for name, keep in (("near", ~far_track), ("far", far_track)):
         summary = colour_slope_summary(obs.track_ids[keep], obs.ranges[keep],

@@ -465,7 +465,8 @@ def test_frontier_labels_each_run_with_its_capacity_level():
 BETA = np.array([0.4, 0.2, 0.1])   # the water's attenuation per unit range, R G B
 
 
-def _track_slope(removed: float, held_out: bool = True, seed: int = 0) -> dict:
+def _track_slope(removed: float, held_out: bool = True, seed: int = 0,
+                 near_far: bool = False) -> dict:
     """``track_colour_slope`` as the evaluate step writes it, fitted on synthetic tracks whose
     input colour falls as exp(-BETA range) and whose restoration keeps ``1 - removed`` of that."""
     from seathru.eval.track_slope import colour_slope_summary
@@ -478,9 +479,14 @@ def _track_slope(removed: float, held_out: bool = True, seed: int = 0) -> dict:
     observed = albedo * np.exp(-BETA * ranges[:, None]) * noise
     restored = albedo * np.exp(-(1.0 - removed) * BETA * ranges[:, None]) * noise
     held = ids < 25
+    far = ids >= 36
     return {"source": "/d/sparse/0", "range_units": "source units (COLMAP's)",
             "restored_from": "the trained model",
             "all_views": colour_slope_summary(ids, ranges, observed, restored),
+            **({"near_tracks": colour_slope_summary(ids[~far], ranges[~far], observed[~far],
+                                                    restored[~far]),
+                "far_tracks": colour_slope_summary(ids[far], ranges[far], observed[far],
+                                                   restored[far])} if near_far else {}),
             "held_out_views": (colour_slope_summary(ids[held], ranges[held], observed[held],
                                                     restored[held]) if held_out else
                                {"source": "none", "reason": "3 tracks have two or more "
@@ -490,7 +496,7 @@ def _track_slope(removed: float, held_out: bool = True, seed: int = 0) -> dict:
 def _slope_records() -> list[DatasetRecord]:
     reef, lagoon, plain, untrained = (_summary(name, 25.0) for name in
                                       ("reef", "lagoon", "plain", "untrained"))
-    reef.track_colour_slope = _track_slope(0.8)
+    reef.track_colour_slope = _track_slope(0.8, near_far=True)
     lagoon.track_colour_slope = _track_slope(0.4, held_out=False, seed=1)
     untrained.track_colour_slope = {"source": "none", "reason": "/d/model.pt: no trained model"}
     return [DatasetRecord("reef", summary=reef), DatasetRecord("lagoon", summary=lagoon),
@@ -542,9 +548,12 @@ def test_html_shows_slopes_per_channel_against_the_goal_and_why_a_part_is_missin
               f'<td rowspan="3">{reef_all["input"]["observations"]}</td>')
     assert counts in reef and reef_all["input"]["tracks"] == 40
     goal = f"{100 * TRACK_SLOPE_GOAL:.0f}%"
-    assert reef.count(f"(meets the {goal} goal)") == 2        # all views and held-out views
+    # all views, held-out views, the nearest and the farthest tracks
+    assert reef.count(f"(meets the {goal} goal)") == 4
+    assert "nearest 90% of tracks" in reef and "farthest 10% of tracks" in reef
     lagoon = section[section.index(">lagoon<"):section.index(">untrained<")]
     assert lagoon.count(f"(below the {goal} goal)") == 1 and "meets" not in lagoon
     assert "not measured: 3 tracks have two or more observations (need 20)" in lagoon
+    assert "of tracks" not in lagoon      # an evaluation from before the near/far split
     plain = render_html(summary_table(records[2:3]), records[2:3], {}, {}, "now")
     assert "COLMAP tracks" not in plain and "track_slope" not in plain

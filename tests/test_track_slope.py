@@ -7,11 +7,13 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import torch
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seathru.eval.track_slope import colour_slope_summary, slope_reduction, track_slope
+from seathru.eval.track_slope import (colour_slope_summary, far_tracks, slope_reduction,
+                                      track_slope)
 from seathru.io import tracks as tracks_io
 from seathru.io.cameras import CameraSet, Frame
 from seathru.io.images import write_float_tiff
@@ -206,3 +208,44 @@ def test_opacity_in_front_stops_each_ray_short_of_its_points_range(tmp_path, mon
     monkeypatch.setattr("seathru.nerf.inference.render_rays", render_rays)
     opacity = tracks_io.opacity_in_front(None, cameras, obs, share=0.7)
     np.testing.assert_allclose(opacity, 0.7 * obs.ranges * cameras.scale, rtol=1e-6)
+
+
+def test_far_tracks_are_those_whose_median_range_is_in_the_top_tenth():
+    rng = np.random.default_rng(3)
+    ids = rng.permutation(np.repeat(np.arange(50), 5))
+    centre = np.linspace(1.0, 30.0, 50)[ids]
+    ranges = centre * rng.uniform(0.9, 1.1, ids.size)
+    far = far_tracks(ids, ranges)
+    medians = np.array([np.median(ranges[ids == k]) for k in range(50)])   # the reference
+    expected = medians > np.quantile(medians, 0.9)
+    assert expected.sum() == 5
+    np.testing.assert_array_equal(far, expected[ids])
+    np.testing.assert_array_equal(far_tracks(ids, ranges, share=0.5),
+                                  (medians > np.quantile(medians, 0.5))[ids])
+    assert far_tracks(ids[:0], ranges[:0]).size == 0
+    with pytest.raises(ValueError, match="disagree"):
+        far_tracks(ids, ranges[:-1])
+
+
+def test_track_colour_slope_splits_the_tracks_into_near_and_far(tmp_path, monkeypatch):
+    """Every observation falls in one of the two parts; the far part holds the tracks of
+    :func:`far_tracks`."""
+    cameras, points = _scene(tmp_path)
+    (tmp_path / "sparse").mkdir()
+    (tmp_path / "model.pt").write_bytes(b"stand-in")
+    model = SimpleNamespace(images={i + 1: SimpleNamespace(name=f"v{i}.png") for i in range(3)},
+                            points3D={k: SimpleNamespace(xyz=p, track=SimpleNamespace(elements=[
+                                SimpleNamespace(image_id=i) for i in (1, 2, 3)]))
+                                for k, p in enumerate(points)})
+    monkeypatch.setattr(tracks_io, "read_model", lambda path: model)
+    monkeypatch.setattr("seathru.io.model.load_model", lambda path, device=None: None)
+    monkeypatch.setattr("seathru.nerf.inference.render_rays",
+                        lambda model, origins, directions, near, far, chunk=8192:
+                        {"restored": torch.ones(len(origins), 3)})
+    result = tracks_io.track_colour_slope(cameras, tmp_path / "model.pt", min_tracks=1)
+    obs = tracks_io.track_observations(cameras, tmp_path / "sparse")
+    far = far_tracks(obs.track_ids, obs.ranges)
+    assert 0 < far.sum() < far.size
+    assert result["near_tracks"]["input"]["observations"] == (~far).sum()
+    assert result["far_tracks"]["input"]["observations"] == far.sum()
+    assert result["all_views"]["input"]["observations"] == far.size

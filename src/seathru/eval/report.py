@@ -59,7 +59,11 @@ TABLE_COLUMNS = (
 #: The share of the input's colour slope along tracks a restoration should remove on a real dive.
 TRACK_SLOPE_GOAL = 0.7
 #: The parts of ``track_colour_slope`` (views of the tracks' observations) and their labels.
-TRACK_SLOPE_PARTS = (("all_views", "all views"), ("held_out_views", "held-out views"))
+TRACK_SLOPE_PARTS = (("all_views", "all views"), ("held_out_views", "held-out views"),
+                     ("near_tracks", "nearest 90% of tracks"),
+                     ("far_tracks", "farthest 10% of tracks"))
+#: Parts that evaluations before them do not have: shown only where present.
+OPTIONAL_TRACK_SLOPE_PARTS = ("near_tracks", "far_tracks")
 ALWAYS_SHOWN = ("dataset", "status", "warnings", "needs_a_look", "error", "failed_step")
 #: A protocol's means shown, in this order, as ``<protocol>_<metric>`` after ``lpips``.
 PROTOCOL_METRICS = ("psnr", "ssim", "lpips", "lpips_vgg")
@@ -409,6 +413,8 @@ def track_slope_rows(records: Sequence[DatasetRecord]) -> list[dict]:
             continue
         parts = []
         for key, label in TRACK_SLOPE_PARTS if slope.get("source") != "none" else ():
+            if key in OPTIONAL_TRACK_SLOPE_PARTS and key not in slope:
+                continue
             part, raw = _slope_part(slope, key), slope.get(key)
             if part is None:
                 reason = raw.get("reason") if isinstance(raw, dict) else None

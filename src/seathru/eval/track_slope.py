@@ -103,6 +103,35 @@ def slope_reduction(input_slope: np.ndarray, restored_slope: np.ndarray) -> np.n
         return np.where(before > 0, 1.0 - after / before, np.nan)
 
 
+def far_tracks(track_ids: np.ndarray, ranges: np.ndarray, share: float = 0.9) -> np.ndarray:
+    """(N,) bool: the observations of the tracks whose median range lies above the ``share``
+    quantile of all tracks' median ranges (the far tail; the rest are the near tracks).
+
+    Far tracks spread most in range, so they weigh most in the pooled slope, and there the
+    restoration divides by the smallest transmittance: a slope split into near and far tracks
+    tells a restoration that fails everywhere from one that fails only in the far field.
+
+    Args:
+        track_ids, ranges: (N,) as for :func:`track_slope`.
+        share: the quantile of the tracks' median ranges that separates near from far.
+
+    Example::
+
+        far = far_tracks(ids, ranges)
+        near_fit = track_slope(ids[~far], ranges[~far], rgb[~far])
+    """
+    track_ids, ranges = np.asarray(track_ids), np.asarray(ranges, dtype=np.float64)
+    if track_ids.shape != ranges.shape:
+        raise ValueError(f"track_ids {track_ids.shape} and ranges {ranges.shape} disagree")
+    if track_ids.size == 0:
+        return np.zeros(0, bool)
+    import pandas as pd
+
+    median = pd.Series(ranges).groupby(track_ids).median()
+    threshold = np.quantile(median.to_numpy(), share)
+    return pd.Series(track_ids).map(median > threshold).to_numpy(bool)
+
+
 def colour_slope_summary(track_ids: np.ndarray, ranges: np.ndarray, observed: np.ndarray,
                          restored: np.ndarray, *, log: bool = True,
                          floor: float = 1e-3) -> dict:

@@ -177,11 +177,13 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
     range in the input images and in the restored renders, per channel, and its reduction
     (``seathru.eval.track_slope.colour_slope_summary``) over all views of the tracks, and over
     the held-out views alone where at least ``min_tracks`` tracks have two held-out
-    observations (else that part is ``{"source": "none", "reason": ...}``). None without a
+    observations (else that part is ``{"source": "none", "reason": ...}``), and over all views
+    of the nearest 90% of the tracks and of the farthest 10% (``near_tracks``, ``far_tracks``;
+    ``seathru.eval.track_slope.far_tracks``). None without a
     COLMAP model next to the camera file; ``{"source": "none", "reason": ...}`` without a
     trained model.
     """
-    from seathru.eval.track_slope import colour_slope_summary
+    from seathru.eval.track_slope import colour_slope_summary, far_tracks
 
     model_dir = (cameras.root or Path(".")) / SPARSE_DIR
     if not model_dir.is_dir():
@@ -191,7 +193,9 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
     obs = track_observations(cameras, model_dir)
     result: dict = {"source": str(model_dir), "range_units": "source units (COLMAP's)",
                     "restored_from": "the trained model, rendered at every observation's pixel"}
-    parts = {"all_views": np.ones(len(obs.rows), bool), "held_out_views": obs.held_out}
+    far = far_tracks(obs.track_ids, obs.ranges)
+    parts = {"all_views": np.ones(len(obs.rows), bool), "held_out_views": obs.held_out,
+             "near_tracks": ~far, "far_tracks": far}
     restored = None
     for name, keep in parts.items():
         ids, counts = np.unique(obs.track_ids[keep], return_counts=True)
