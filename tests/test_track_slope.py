@@ -132,6 +132,15 @@ def _scene(root: Path) -> tuple[CameraSet, np.ndarray]:
     return cameras, points
 
 
+def _every_point_in_every_view(points: np.ndarray, monkeypatch) -> None:
+    """A stand-in COLMAP model for :func:`_scene`: every point tracked in all three views."""
+    model = SimpleNamespace(images={i + 1: SimpleNamespace(name=f"v{i}.png") for i in range(3)},
+                            points3D={k: SimpleNamespace(xyz=p, track=SimpleNamespace(elements=[
+                                SimpleNamespace(image_id=i) for i in (1, 2, 3)]))
+                                for k, p in enumerate(points)})
+    monkeypatch.setattr(tracks_io, "read_model", lambda path: model)
+
+
 def test_track_observations_find_each_points_pixel_and_range(tmp_path, monkeypatch):
     cameras, points = _scene(tmp_path)
     images = {i + 1: SimpleNamespace(name=f"v{i}.png") for i in range(3)}
@@ -172,11 +181,7 @@ def test_restored_colours_come_from_the_ray_of_each_observations_pixel(tmp_path,
     """A stand-in model whose restored colour is its ray's direction: each observation gets
     the direction of its own pixel's ray (the model's ray code as the reference)."""
     cameras, points = _scene(tmp_path)
-    model = SimpleNamespace(images={i + 1: SimpleNamespace(name=f"v{i}.png") for i in range(3)},
-                            points3D={k: SimpleNamespace(xyz=p, track=SimpleNamespace(elements=[
-                                SimpleNamespace(image_id=i) for i in (1, 2, 3)]))
-                                for k, p in enumerate(points)})
-    monkeypatch.setattr(tracks_io, "read_model", lambda path: model)
+    _every_point_in_every_view(points, monkeypatch)
     obs = tracks_io.track_observations(cameras, tmp_path / "sparse")
 
     def render_rays(model, origins, directions, near, far, chunk=8192):
@@ -195,11 +200,7 @@ def test_opacity_in_front_stops_each_ray_short_of_its_points_range(tmp_path, mon
     """A stand-in model whose opacity is the far bound it is given: each observation's ray ends
     at the share of its point's range, in the camera file's normalised units."""
     cameras, points = _scene(tmp_path)
-    model = SimpleNamespace(images={i + 1: SimpleNamespace(name=f"v{i}.png") for i in range(3)},
-                            points3D={k: SimpleNamespace(xyz=p, track=SimpleNamespace(elements=[
-                                SimpleNamespace(image_id=i) for i in (1, 2, 3)]))
-                                for k, p in enumerate(points)})
-    monkeypatch.setattr(tracks_io, "read_model", lambda path: model)
+    _every_point_in_every_view(points, monkeypatch)
     obs = tracks_io.track_observations(cameras, tmp_path / "sparse")
 
     def render_rays(model, origins, directions, near, far, chunk=8192):
@@ -233,11 +234,7 @@ def test_track_colour_slope_splits_the_tracks_into_near_and_far(tmp_path, monkey
     cameras, points = _scene(tmp_path)
     (tmp_path / "sparse").mkdir()
     (tmp_path / "model.pt").write_bytes(b"stand-in")
-    model = SimpleNamespace(images={i + 1: SimpleNamespace(name=f"v{i}.png") for i in range(3)},
-                            points3D={k: SimpleNamespace(xyz=p, track=SimpleNamespace(elements=[
-                                SimpleNamespace(image_id=i) for i in (1, 2, 3)]))
-                                for k, p in enumerate(points)})
-    monkeypatch.setattr(tracks_io, "read_model", lambda path: model)
+    _every_point_in_every_view(points, monkeypatch)
     monkeypatch.setattr("seathru.io.model.load_model", lambda path, device=None: None)
     monkeypatch.setattr("seathru.nerf.inference.render_rays",
                         lambda model, origins, directions, near, far, chunk=8192:
