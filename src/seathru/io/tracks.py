@@ -156,8 +156,8 @@ def opacity_in_front(model, cameras: CameraSet, obs: TrackObservations, share: f
     range of its COLMAP point: fog or floaters in front of the surface.
 
     The restored view renders the object field alone, so whatever the object field holds in
-    front of a surface (often water colour standing in for backscatter the medium misses) is
-    part of the restored colour, more of it the longer the range.
+    front of a surface is part of the restored colour (fog that stands in for water the medium
+    misses shows as colour that grows with range).
     """
     import torch
 
