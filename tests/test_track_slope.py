@@ -141,6 +141,13 @@ def _every_point_in_every_view(points: np.ndarray, monkeypatch) -> None:
     monkeypatch.setattr(tracks_io, "read_model", lambda path: model)
 
 
+def _tracked_scene(tmp_path: Path, monkeypatch) -> tuple[CameraSet, tracks_io.TrackObservations]:
+    """:func:`_scene` with every point tracked in every view, and its observations."""
+    cameras, points = _scene(tmp_path)
+    _every_point_in_every_view(points, monkeypatch)
+    return cameras, tracks_io.track_observations(cameras, tmp_path / "sparse")
+
+
 def test_track_observations_find_each_points_pixel_and_range(tmp_path, monkeypatch):
     cameras, points = _scene(tmp_path)
     images = {i + 1: SimpleNamespace(name=f"v{i}.png") for i in range(3)}
@@ -180,9 +187,7 @@ def test_no_colmap_model_means_no_track_slope(tmp_path):
 def test_restored_colours_come_from_the_ray_of_each_observations_pixel(tmp_path, monkeypatch):
     """A stand-in model whose restored colour is its ray's direction: each observation gets
     the direction of its own pixel's ray (the model's ray code as the reference)."""
-    cameras, points = _scene(tmp_path)
-    _every_point_in_every_view(points, monkeypatch)
-    obs = tracks_io.track_observations(cameras, tmp_path / "sparse")
+    cameras, obs = _tracked_scene(tmp_path, monkeypatch)
 
     def render_rays(model, origins, directions, near, far, chunk=8192):
         return {"restored": directions.clone()}
@@ -199,9 +204,7 @@ def test_restored_colours_come_from_the_ray_of_each_observations_pixel(tmp_path,
 def test_opacity_in_front_stops_each_ray_short_of_its_points_range(tmp_path, monkeypatch):
     """A stand-in model whose opacity is the far bound it is given: each observation's ray ends
     at the share of its point's range, in the camera file's normalised units."""
-    cameras, points = _scene(tmp_path)
-    _every_point_in_every_view(points, monkeypatch)
-    obs = tracks_io.track_observations(cameras, tmp_path / "sparse")
+    cameras, obs = _tracked_scene(tmp_path, monkeypatch)
 
     def render_rays(model, origins, directions, near, far, chunk=8192):
         return {"opacity": far.clone()}
@@ -231,16 +234,14 @@ def test_far_tracks_are_those_whose_median_range_is_in_the_top_tenth():
 def test_track_colour_slope_splits_the_tracks_into_near_and_far(tmp_path, monkeypatch):
     """Every observation falls in one of the two parts; the far part holds the tracks of
     :func:`far_tracks`."""
-    cameras, points = _scene(tmp_path)
+    cameras, obs = _tracked_scene(tmp_path, monkeypatch)
     (tmp_path / "sparse").mkdir()
     (tmp_path / "model.pt").write_bytes(b"stand-in")
-    _every_point_in_every_view(points, monkeypatch)
     monkeypatch.setattr("seathru.io.model.load_model", lambda path, device=None: None)
     monkeypatch.setattr("seathru.nerf.inference.render_rays",
                         lambda model, origins, directions, near, far, chunk=8192:
                         {"restored": torch.ones(len(origins), 3)})
     result = tracks_io.track_colour_slope(cameras, tmp_path / "model.pt", min_tracks=1)
-    obs = tracks_io.track_observations(cameras, tmp_path / "sparse")
     far = far_tracks(obs.track_ids, obs.ranges)
     assert 0 < far.sum() < far.size
     assert result["near_tracks"]["input"]["observations"] == (~far).sum()
