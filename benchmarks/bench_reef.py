@@ -67,33 +67,38 @@ def open_water_scores(run: Path, cameras_path: Path) -> dict:
 
 
 def track_scores(run: Path, cameras_path: Path) -> dict:
-    """Fog in front of the tracked surfaces, and the slope reduction of the nearest 90% of
-    tracks against the farthest 10% (by each track's median range)."""
+    """Fog in front of the tracked surfaces, the slope reduction of the nearest 90% of tracks
+    against the farthest 10% (by each track's median range), and the share of the input's
+    slope the full render (with water) follows, over all tracks."""
     import torch
 
     from seathru.eval.track_slope import colour_slope_summary, far_tracks
     from seathru.io.model import load_model
-    from seathru.io.tracks import (SPARSE_DIR, opacity_in_front, restored_colours,
+    from seathru.io.tracks import (SPARSE_DIR, opacity_in_front, rendered_colours,
                                    track_observations)
 
     cameras = read_cameras(cameras_path)
     model_path = run / "train" / "model.pt"
     if not (cameras.root / SPARSE_DIR).is_dir() or not model_path.is_file():
-        return {"fog_all": None, "fog_far": None, "reduction_near": None, "reduction_far": None}
+        return {"fog_all": None, "fog_far": None, "reduction_near": None, "reduction_far": None,
+                "reproduced": None}
     torch.set_num_threads(1)
     obs = track_observations(cameras, cameras.root / SPARSE_DIR)
     model = load_model(model_path)
     with torch.no_grad():
         fog = opacity_in_front(model, cameras, obs)
-        restored = restored_colours(model, cameras, obs)
+        rendered = rendered_colours(model, cameras, obs)
     far = obs.ranges >= np.quantile(obs.ranges, 0.75)
     far_track = far_tracks(obs.track_ids, obs.ranges)
-    reductions = {}
-    for name, keep in (("near", ~far_track), ("far", far_track)):
+    scores = {}
+    for name, keep in (("near", ~far_track), ("far", far_track),
+                       ("all", np.ones(len(obs.rows), bool))):
         summary = colour_slope_summary(obs.track_ids[keep], obs.ranges[keep],
-                                       obs.observed[keep], restored[keep])
-        reductions[f"reduction_{name}"] = summary.get("reduction")
-    return {"fog_all": float(fog.mean()), "fog_far": float(fog[far].mean()), **reductions}
+                                       obs.observed[keep], rendered["restored"][keep],
+                                       rendered["rgb"][keep])
+        scores[f"reduction_{name}"] = summary.get("reduction")
+        scores["reproduced"] = summary.get("reproduced")
+    return {"fog_all": float(fog.mean()), "fog_far": float(fog[far].mean()), **scores}
 
 
 def describe(run: Path, cameras_path: Path) -> dict:
@@ -140,11 +145,14 @@ def main() -> None:
              "COLMAP tracks, input photographs vs restored renders (goal: >= 70% smaller). Fog: "
              "object opacity in front of the tracked surfaces (before 0.8 of the point's "
              "range), all observations / the farthest quarter. Reduction by range: the nearest "
-             "90% of tracks / the farthest 10% (each track's median range).", "",
+             "90% of tracks / the farthest 10% (each track's median range). Followed: the full "
+             "render's slope (with water) as a share of the input's, all tracks: a model that "
+             "does not follow the input's slope takes it out of the restored render whether or "
+             "not it removed the water.", "",
              "| run | capacity | medium | open water (% of pixels) | of it empty (%) | "
              "held-out PSNR (dB) | track slope input (R, G, B) | restored | reduction | fog (%) | "
-             "reduction, nearest 90% / farthest 10% of tracks |",
-             "|---" * 11 + "|"]
+             "reduction, nearest 90% / farthest 10% of tracks | followed by the full render |",
+             "|---" * 12 + "|"]
     for row in rows:
         tracks = (row["tracks"] or {}).get("all_views") or {}
         input_slope, restored_slope = (
@@ -156,7 +164,8 @@ def main() -> None:
             f"{_fmt(row['psnr'])} | {input_slope} | {restored_slope} | "
             f"{_percentages(tracks.get('reduction'))} | "
             f"{_fmt(row['fog_all'], 1, 100)} / {_fmt(row['fog_far'], 1, 100)} | "
-            f"{_percentages(row['reduction_near'])} / {_percentages(row['reduction_far'])} |")
+            f"{_percentages(row['reduction_near'])} / {_percentages(row['reduction_far'])} | "
+            f"{_percentages(row['reproduced'])} |")
     lines += ["", "Evidence of water per run (selection.json):", ""]
     lines += [f"- {row['run']}: {'; '.join(row['evidence']) or 'none'}" for row in rows]
     args.out.write_text("\n".join(lines) + "\n")

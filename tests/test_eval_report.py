@@ -478,11 +478,12 @@ def _track_slope(removed: float, held_out: bool = True, seed: int = 0,
     noise = np.exp(rng.normal(0.0, 0.01, (ids.size, 3)))
     observed = albedo * np.exp(-BETA * ranges[:, None]) * noise
     restored = albedo * np.exp(-(1.0 - removed) * BETA * ranges[:, None]) * noise
+    rendered = observed * np.exp(0.5 * BETA * ranges[:, None])   # follows half the slope
     held = ids < 25
     far = ids >= 36
     return {"source": "/d/sparse/0", "range_units": "source units (COLMAP's)",
             "restored_from": "the trained model",
-            "all_views": colour_slope_summary(ids, ranges, observed, restored),
+            "all_views": colour_slope_summary(ids, ranges, observed, restored, rendered),
             **({"near_tracks": colour_slope_summary(ids[~far], ranges[~far], observed[~far],
                                                     restored[~far]),
                 "far_tracks": colour_slope_summary(ids[far], ranges[far], observed[far],
@@ -541,9 +542,15 @@ def test_html_shows_slopes_per_channel_against_the_goal_and_why_a_part_is_missin
         assert slope == pytest.approx(-BETA[channel], rel=0.05)
         assert 0 < error < 0.1 * BETA[channel]
         restored = reef_all["restored"]["slope"][channel]
-        assert (f"<td>{name}</td><td>{slope:.4g} &plusmn; {error:.4g}</td><td>{restored:.4g} "
+        rendered = reef_all["rendered"]["slope"][channel]
+        assert rendered == pytest.approx(-0.5 * BETA[channel], rel=0.05)
+        assert (f"<td>{name}</td><td>{slope:.4g} &plusmn; {error:.4g}</td><td>{rendered:.4g} "
+                f"&plusmn; {reef_all['rendered']['stderr'][channel]:.4g}</td><td>{restored:.4g} "
                 f"&plusmn; {reef_all['restored']['stderr'][channel]:.4g}</td>"
                 f"<td>{100 * reef_all['reduction'][channel]:.0f}%</td>") in reef
+    # parts without the full render's slope (evaluations from before it) leave its cell empty
+    near = records[0].summary.track_colour_slope["near_tracks"]
+    assert f"<td>{near['input']['slope'][0]:.4g} &plusmn; {near['input']['stderr'][0]:.4g}</td><td>—</td>" in reef
     counts = (f'<td rowspan="3">{reef_all["input"]["tracks"]}</td>'
               f'<td rowspan="3">{reef_all["input"]["observations"]}</td>')
     assert counts in reef and reef_all["input"]["tracks"] == 40

@@ -90,6 +90,24 @@ def test_range_independent_colour_has_zero_slope_and_full_reduction():
     assert summary["input"]["tracks"] == summary["restored"]["tracks"]
 
 
+def test_the_full_renders_slope_says_how_much_of_the_input_it_follows():
+    """A render that keeps half of the water's log slope follows half of the input's; one
+    without water follows none, and its restored slope is zero whether or not water was
+    removed."""
+    ids, ranges, colours, _ = _tracks(np.random.default_rng(3), 100, np.zeros(3))
+    beta = np.array([0.4, 0.2, 0.1])
+    water = colours * np.exp(-beta * ranges[:, None])
+    half = colours * np.exp(-0.5 * beta * ranges[:, None])
+    summary = colour_slope_summary(ids, ranges, water, colours, rendered=half)
+    assert summary["rendered"]["slope"] == pytest.approx(list(-0.5 * beta), abs=1e-9)
+    assert summary["reproduced"] == pytest.approx([0.5, 0.5, 0.5], abs=1e-9)
+    assert summary["rendered"]["tracks"] == summary["input"]["tracks"]
+    flat = colour_slope_summary(ids, ranges, water, colours, rendered=colours)
+    assert flat["reproduced"] == pytest.approx([0.0, 0.0, 0.0], abs=1e-9)
+    assert flat["reduction_overall"] == pytest.approx(1.0, abs=1e-9)
+    assert "rendered" not in colour_slope_summary(ids, ranges, water, colours)
+
+
 def test_reduction_is_one_minus_the_ratio_of_absolute_slopes():
     reduction = slope_reduction([-0.2, 0.1, 0.0], [-0.05, -0.2, 0.1])
     assert reduction[0] == pytest.approx(0.75)
@@ -184,17 +202,20 @@ def test_no_colmap_model_means_no_track_slope(tmp_path):
     assert result["source"] == "none" and "model" in result["reason"]
 
 
-def test_restored_colours_come_from_the_ray_of_each_observations_pixel(tmp_path, monkeypatch):
-    """A stand-in model whose restored colour is its ray's direction: each observation gets
-    the direction of its own pixel's ray (the model's ray code as the reference)."""
+def test_rendered_colours_come_from_the_ray_of_each_observations_pixel(tmp_path, monkeypatch):
+    """A stand-in model whose restored colour is its ray's direction (its full render the
+    negated direction): each observation gets the direction of its own pixel's ray (the
+    model's ray code as the reference)."""
     cameras, obs = _tracked_scene(tmp_path, monkeypatch)
 
     def render_rays(model, origins, directions, near, far, chunk=8192):
-        return {"restored": directions.clone()}
+        return {"restored": directions.clone(), "rgb": -directions}
 
     monkeypatch.setattr("seathru.nerf.inference.render_rays", render_rays)
-    colours = tracks_io.restored_colours(None, cameras, obs)
-    for row, col, frame_index, colour in zip(obs.rows, obs.cols, obs.frames, colours):
+    colours = tracks_io.rendered_colours(None, cameras, obs)
+    np.testing.assert_array_equal(colours["rgb"], -colours["restored"])
+    for row, col, frame_index, colour in zip(obs.rows, obs.cols, obs.frames,
+                                             colours["restored"]):
         frame = cameras.frames[frame_index]
         _, dirs = camera_rays_np(frame.c2w_array, frame.fx, frame.fy, frame.cx, frame.cy,
                                  frame.width, frame.height)
@@ -240,9 +261,12 @@ def test_track_colour_slope_splits_the_tracks_into_near_and_far(tmp_path, monkey
     monkeypatch.setattr("seathru.io.model.load_model", lambda path, device=None: None)
     monkeypatch.setattr("seathru.nerf.inference.render_rays",
                         lambda model, origins, directions, near, far, chunk=8192:
-                        {"restored": torch.ones(len(origins), 3)})
+                        {"restored": torch.ones(len(origins), 3),
+                         "rgb": torch.full((len(origins), 3), 0.5)})
     result = tracks_io.track_colour_slope(cameras, tmp_path / "model.pt", min_tracks=1)
     far = far_tracks(obs.track_ids, obs.ranges)
+    # a render that does not change with range follows none of the input's slope
+    assert result["all_views"]["rendered"]["slope"] == pytest.approx([0.0] * 3, abs=1e-12)
     assert 0 < far.sum() < far.size
     assert result["near_tracks"]["input"]["observations"] == (~far).sum()
     assert result["far_tracks"]["input"]["observations"] == far.sum()

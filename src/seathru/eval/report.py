@@ -404,8 +404,8 @@ def track_slope_rows(records: Sequence[DatasetRecord]) -> list[dict]:
     "Colour along COLMAP tracks"): ``dataset``, ``range_units``, ``reason`` (why nothing was
     fitted, else None) and ``parts``, per :data:`TRACK_SLOPE_PARTS` (by label): ``label``,
     ``reason`` (why that part is missing, else None), ``tracks``, ``observations`` (of the
-    input's fit), ``channels`` (``channel``, ``input`` and ``restored`` as (slope, stderr),
-    ``reduction``), ``overall`` and ``meets_goal`` (``overall >= TRACK_SLOPE_GOAL``)."""
+    input's fit), ``channels`` (``channel``, ``input``, ``restored`` and ``rendered`` (the full
+    render; (None, None) in evaluations from before it) as (slope, stderr), ``reduction``), ``overall`` and ``meets_goal`` (``overall >= TRACK_SLOPE_GOAL``)."""
     rows = []
     for record in records:
         slope = record.summary.track_colour_slope if record.summary is not None else None
@@ -421,6 +421,7 @@ def track_slope_rows(records: Sequence[DatasetRecord]) -> list[dict]:
                 parts.append({"label": label, "reason": str(reason or "not measured")})
                 continue
             inputs, restored = _slope_fit(part.get("input")), _slope_fit(part.get("restored"))
+            rendered = _slope_fit(part.get("rendered"))
             reduction = list(part.get("reduction") or [])
             overall = _finite(part.get("reduction_overall"))
             parts.append({
@@ -429,6 +430,7 @@ def track_slope_rows(records: Sequence[DatasetRecord]) -> list[dict]:
                 "observations": (part.get("input") or {}).get("observations"),
                 "channels": [{"channel": name, "input": inputs[i],
                               "restored": restored[i] if i < len(restored) else (None, None),
+                              "rendered": rendered[i] if i < len(rendered) else (None, None),
                               "reduction": _finite(reduction[i]) if i < len(reduction)
                               else None} for i, name in enumerate("RGB"[:len(inputs)])],
                 "overall": overall,

@@ -133,29 +133,48 @@ def far_tracks(track_ids: np.ndarray, ranges: np.ndarray, share: float = 0.9) ->
 
 
 def colour_slope_summary(track_ids: np.ndarray, ranges: np.ndarray, observed: np.ndarray,
-                         restored: np.ndarray, *, log: bool = True,
-                         floor: float = 1e-3) -> dict:
+                         restored: np.ndarray, rendered: np.ndarray | None = None, *,
+                         log: bool = True, floor: float = 1e-3) -> dict:
     """The input's and the restoration's slopes on the same observations, and the reduction.
+
+    A model whose full render (with water) does not follow the input's slope removes it from
+    the restored render too, water or not: ``rendered`` tells a restoration that removed the
+    water from a reconstruction that never held the range dependence.
 
     Args:
         track_ids, ranges: (N,) as for :func:`track_slope`.
         observed: (N, 3) input (underwater) colours; restored: (N, 3) restored colours.
+        rendered: (N, 3) optional full renders (with water) at the same pixels.
         log, floor: as for :func:`track_slope`.
 
     Returns:
         ``{"input": {...}, "restored": {...}, "reduction": [3], "reduction_overall"}``; a
         slope record holds ``slope``, ``stderr`` (lists per channel), ``tracks``,
         ``observations``. ``reduction_overall`` is ``1 - sum|restored| / sum|input|`` over
-        the channels.
+        the channels. With ``rendered``, also ``"rendered"`` (its slope record) and
+        ``"reproduced"`` (per channel, rendered slope / input slope: 1 when the full render
+        changes with range as the input does).
+
+    Example::
+
+        summary = colour_slope_summary(ids, ranges, rgb_in, restored, rendered=rgb_out)
+        summary["reduction_overall"], summary["reproduced"]
     """
     before = track_slope(track_ids, ranges, observed, log=log, floor=floor)
     after = track_slope(track_ids, ranges, restored, log=log, floor=floor)
     total = float(np.sum(np.abs(before.slope)))
-    return {"log_colour": log,
-            "input": _record(before), "restored": _record(after),
-            "reduction": slope_reduction(before.slope, after.slope).tolist(),
-            "reduction_overall": (1.0 - float(np.sum(np.abs(after.slope))) / total
-                                  if total > 0 else float("nan"))}
+    summary = {"log_colour": log,
+               "input": _record(before), "restored": _record(after),
+               "reduction": slope_reduction(before.slope, after.slope).tolist(),
+               "reduction_overall": (1.0 - float(np.sum(np.abs(after.slope))) / total
+                                     if total > 0 else float("nan"))}
+    if rendered is not None:
+        full = track_slope(track_ids, ranges, rendered, log=log, floor=floor)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            reproduced = np.where(before.slope != 0, full.slope / before.slope, np.nan)
+        summary["rendered"] = _record(full)
+        summary["reproduced"] = reproduced.tolist()
+    return summary
 
 
 def _record(fit: TrackSlope) -> dict:

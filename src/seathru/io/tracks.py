@@ -138,15 +138,17 @@ def observation_rays(cameras: CameraSet, obs: TrackObservations):
                torch.full((here.size,), float(frame.far)))
 
 
-def restored_colours(model, cameras: CameraSet, obs: TrackObservations,
-                     chunk: int = 8192) -> np.ndarray:
-    """(N, 3) restored (water removed) colour the model renders at each observation's pixel."""
+def rendered_colours(model, cameras: CameraSet, obs: TrackObservations,
+                     chunk: int = 8192) -> dict[str, np.ndarray]:
+    """The model's colours at each observation's pixel: ``{"restored": (N, 3), "rgb": (N, 3)}``,
+    the restored (water removed) and the full (with water) render."""
     from seathru.nerf.inference import render_rays
 
-    colours = np.zeros((len(obs.rows), 3), np.float32)
+    colours = {key: np.zeros((len(obs.rows), 3), np.float32) for key in ("restored", "rgb")}
     for here, origins, directions, near, far in observation_rays(cameras, obs):
         rendered = render_rays(model, origins, directions, near, far, chunk)
-        colours[here] = rendered["restored"].numpy()
+        for key, values in colours.items():
+            values[here] = rendered[key].numpy()
     return colours
 
 
@@ -174,7 +176,8 @@ def opacity_in_front(model, cameras: CameraSet, obs: TrackObservations, share: f
 def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None = None,
                        min_tracks: int = MIN_TRACKS) -> dict | None:
     """``summary.json``'s ``track_colour_slope``: the within-track slope of log colour against
-    range in the input images and in the restored renders, per channel, and its reduction
+    range in the input images, in the restored renders and in the full renders (with water),
+    per channel, and its reduction
     (``seathru.eval.track_slope.colour_slope_summary``) over all views of the tracks, and over
     the held-out views alone where at least ``min_tracks`` tracks have two held-out
     observations (else that part is ``{"source": "none", "reason": ...}``), and over all views
@@ -196,7 +199,7 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
     far = far_tracks(obs.track_ids, obs.ranges)
     parts = {"all_views": np.ones(len(obs.rows), bool), "held_out_views": obs.held_out,
              "near_tracks": ~far, "far_tracks": far}
-    restored = None
+    rendered = None
     for name, keep in parts.items():
         ids, counts = np.unique(obs.track_ids[keep], return_counts=True)
         enough = int((counts >= 2).sum())
@@ -204,7 +207,7 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
             result[name] = {"source": "none", "reason": f"{enough} tracks have two or more "
                                                         f"observations (need {min_tracks})"}
             continue
-        if restored is None:
+        if rendered is None:
             from seathru.io.model import load_model
             from seathru.nerf.device import select_device
 
@@ -212,14 +215,16 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
                 model = load_model(model_path, select_device("auto", threads))
             except PipelineError as exc:
                 return {"source": "none", "reason": str(exc)}
-            restored = restored_colours(model, cameras, obs)
+            rendered = rendered_colours(model, cameras, obs)
         result[name] = colour_slope_summary(obs.track_ids[keep], obs.ranges[keep],
-                                            obs.observed[keep], restored[keep])
+                                            obs.observed[keep], rendered["restored"][keep],
+                                            rendered["rgb"][keep])
     headline = result.get("all_views", {})
     if "reduction" in headline:
-        log.info("track colour slope (log colour per unit range, R G B): input %s, restored "
-                 "%s, reduction %s", _fmt(headline["input"]["slope"]),
-                 _fmt(headline["restored"]["slope"]), _fmt(headline["reduction"]))
+        log.info("track colour slope (log colour per unit range, R G B): input %s, full render "
+                 "%s, restored %s, reduction %s", _fmt(headline["input"]["slope"]),
+                 _fmt(headline["rendered"]["slope"]), _fmt(headline["restored"]["slope"]),
+                 _fmt(headline["reduction"]))
     return result
 
 
