@@ -466,7 +466,7 @@ BETA = np.array([0.4, 0.2, 0.1])   # the water's attenuation per unit range, R G
 
 
 def _track_slope(removed: float, held_out: bool = True, seed: int = 0,
-                 near_far: bool = False) -> dict:
+                 near_far: bool = False, followed: float = 0.5) -> dict:
     """``track_colour_slope`` as the evaluate step writes it, fitted on synthetic tracks whose
     input colour falls as exp(-BETA range) and whose restoration keeps ``1 - removed`` of that."""
     from seathru.eval.track_slope import colour_slope_summary
@@ -478,7 +478,7 @@ def _track_slope(removed: float, held_out: bool = True, seed: int = 0,
     noise = np.exp(rng.normal(0.0, 0.01, (ids.size, 3)))
     observed = albedo * np.exp(-BETA * ranges[:, None]) * noise
     restored = albedo * np.exp(-(1.0 - removed) * BETA * ranges[:, None]) * noise
-    rendered = observed * np.exp(0.5 * BETA * ranges[:, None])   # follows half the slope
+    rendered = observed * np.exp((1.0 - followed) * BETA * ranges[:, None])
     held = ids < 25
     far = ids >= 36
     return {"source": "/d/sparse/0", "range_units": "source units (COLMAP's)",
@@ -503,6 +503,39 @@ def _slope_records() -> list[DatasetRecord]:
     return [DatasetRecord("reef", summary=reef), DatasetRecord("lagoon", summary=lagoon),
             DatasetRecord("plain", summary=plain), DatasetRecord("untrained", summary=untrained),
             DatasetRecord("broken", status="failed", failed_step="train", error="boom")]
+
+
+def test_followed_share_pools_the_channels_whose_input_slope_stands_out():
+    from seathru.eval.report import followed_share
+
+    assert followed_share([(0.2, 0.01), (0.0, 0.01)], [(0.05, 0.01), (0.3, 0.01)]) == \
+        pytest.approx(0.25)
+    # a falling input followed by a falling render counts as followed; a rising one against it
+    assert followed_share([(-0.2, 0.01), (0.1, 0.01)], [(-0.2, 0.01), (-0.1, 0.01)]) == \
+        pytest.approx((0.2 - 0.1) / 0.3)
+    assert followed_share([(0.01, 0.01)], [(0.01, 0.01)]) is None        # within its error
+    assert followed_share([(0.2, 0.01)], [(None, None)]) is None          # not measured
+
+
+def test_html_says_a_reduction_says_little_where_the_full_render_does_not_follow_the_input():
+    from seathru.eval.report import TRACK_SLOPE_FOLLOWED_MIN, track_slope_rows
+
+    reef = _summary("reef", 25.0)
+    reef.track_colour_slope = _track_slope(0.8, followed=0.2)
+    demo = _summary("demo", 25.0)
+    demo.track_colour_slope = _track_slope(0.8, seed=2, followed=0.95)
+    records = [DatasetRecord("reef", summary=reef), DatasetRecord("demo", summary=demo)]
+    rows = {row["dataset"]: row["parts"][0] for row in track_slope_rows(records)}
+    assert rows["reef"]["followed"] == pytest.approx(0.2, abs=0.02)
+    assert rows["demo"]["followed"] == pytest.approx(0.95, abs=0.02)
+    assert rows["reef"]["followed"] < TRACK_SLOPE_FOLLOWED_MIN < rows["demo"]["followed"]
+    page = render_html(summary_table(records), records, {}, {}, "now")
+    section = page.split("<h2>Colour along COLMAP tracks</h2>")[1].split("<h2>")[0]
+    reef_part = section[section.index(">reef<"):section.index(">demo<")]
+    demo_part = section[section.index(">demo<"):]
+    note = "of the input's slope, so the share removed says little"
+    assert reef_part.count(note) == 1 and "follows only 20%" in reef_part
+    assert note not in demo_part
 
 
 def test_track_slope_reduction_column_only_where_fitted():

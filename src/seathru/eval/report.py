@@ -58,6 +58,9 @@ TABLE_COLUMNS = (
     "capacity", "passes", "render_fps", "render_resolution", "medium")
 #: The share of the input's colour slope along tracks a restoration should remove on a real dive.
 TRACK_SLOPE_GOAL = 0.7
+#: Below this share of the input's slope followed by the full render, the report says the
+#: reduction says little (the model never held the range dependence it "removed").
+TRACK_SLOPE_FOLLOWED_MIN = 0.5
 #: The parts of ``track_colour_slope`` (views of the tracks' observations) and their labels.
 TRACK_SLOPE_PARTS = (("all_views", "all views"), ("held_out_views", "held-out views"),
                      ("near_tracks", "nearest 90% of tracks"),
@@ -434,12 +437,35 @@ def track_slope_rows(records: Sequence[DatasetRecord]) -> list[dict]:
                               "reduction": _finite(reduction[i]) if i < len(reduction)
                               else None} for i, name in enumerate("RGB"[:len(inputs)])],
                 "overall": overall,
-                "meets_goal": overall is not None and overall >= TRACK_SLOPE_GOAL})
+                "meets_goal": overall is not None and overall >= TRACK_SLOPE_GOAL,
+                "followed": followed_share(inputs, rendered)})
         rows.append({"dataset": record.dataset, "range_units": slope.get("range_units"),
                      "reason": (str(slope.get("reason") or "not measured")
                                 if slope.get("source") == "none" else None),
                      "parts": parts})
     return rows
+
+
+def followed_share(inputs: Sequence[tuple], rendered: Sequence[tuple]) -> float | None:
+    """How much of the input's slope the full render follows, over the channels whose input
+    slope is at least twice its standard error: ``sum_c rendered_c sign(input_c) /
+    sum_c |input_c|`` (1: all of it, 0: none). None without the full render's slopes or
+    without a channel whose input slope stands out of its error.
+
+    Args:
+        inputs, rendered: per channel ``(slope, stderr)`` (``_slope_fit``).
+
+    Example::
+
+        followed_share([(0.2, 0.01), (0.0, 0.01)], [(0.05, 0.01), (0.3, 0.01)])   # 0.25
+    """
+    moved, total = 0.0, 0.0
+    for (slope, error), (followed, _) in zip(inputs, rendered):
+        if slope is None or followed is None or error is None or abs(slope) < 2 * error:
+            continue
+        moved += followed * np.sign(slope)
+        total += abs(slope)
+    return moved / total if total > 0 else None
 
 
 def _ordered_columns(columns: Sequence[str]) -> list[str]:
@@ -637,5 +663,5 @@ def render_html(table: pd.DataFrame, records: Sequence[DatasetRecord],
             for row in frontier.itertuples(index=False)],
         fronts=fronts or {}, protocols=protocol_notes(records), chart_rows=chart_rows(records),
         settings_notes=settings_notes(records), slope_rows=track_slope_rows(records),
-        slope_goal=TRACK_SLOPE_GOAL,
+        slope_goal=TRACK_SLOPE_GOAL, followed_min=TRACK_SLOPE_FOLLOWED_MIN,
         chart_labels=[label for _, label in CHART_IMAGES], charts=charts or {})
