@@ -97,7 +97,8 @@ def track_scores(run: Path, cameras_path: Path) -> dict:
                                        obs.observed[keep], rendered["restored"][keep],
                                        rendered["rgb"][keep])
         scores[f"reduction_{name}"] = summary.get("reduction")
-        scores["reproduced"] = summary.get("reproduced")
+        if name == "all":
+            scores["reproduced"] = summary.get("reproduced")
     return {"fog_all": float(fog.mean()), "fog_far": float(fog[far].mean()), **scores}
 
 

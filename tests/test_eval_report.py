@@ -583,7 +583,9 @@ def test_html_shows_slopes_per_channel_against_the_goal_and_why_a_part_is_missin
                 f"<td>{100 * reef_all['reduction'][channel]:.0f}%</td>") in reef
     # parts without the full render's slope (evaluations from before it) leave its cell empty
     near = records[0].summary.track_colour_slope["near_tracks"]
-    assert f"<td>{near['input']['slope'][0]:.4g} &plusmn; {near['input']['stderr'][0]:.4g}</td><td>—</td>" in reef
+    near_input = near["input"]
+    assert (f"<td>{near_input['slope'][0]:.4g} &plusmn; {near_input['stderr'][0]:.4g}</td>"
+            "<td>—</td>") in reef
     counts = (f'<td rowspan="3">{reef_all["input"]["tracks"]}</td>'
               f'<td rowspan="3">{reef_all["input"]["observations"]}</td>')
     assert counts in reef and reef_all["input"]["tracks"] == 40

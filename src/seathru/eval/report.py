@@ -408,7 +408,9 @@ def track_slope_rows(records: Sequence[DatasetRecord]) -> list[dict]:
     fitted, else None) and ``parts``, per :data:`TRACK_SLOPE_PARTS` (by label): ``label``,
     ``reason`` (why that part is missing, else None), ``tracks``, ``observations`` (of the
     input's fit), ``channels`` (``channel``, ``input``, ``restored`` and ``rendered`` (the full
-    render; (None, None) in evaluations from before it) as (slope, stderr), ``reduction``), ``overall`` and ``meets_goal`` (``overall >= TRACK_SLOPE_GOAL``)."""
+    render; (None, None) in evaluations from before it) as (slope, stderr), ``reduction``),
+    ``overall``, ``meets_goal`` (``overall >= TRACK_SLOPE_GOAL``) and ``followed``
+    (:func:`followed_share`; None where not measured)."""
     rows = []
     for record in records:
         slope = record.summary.track_colour_slope if record.summary is not None else None
