@@ -72,6 +72,7 @@ def track_scores(run: Path, cameras_path: Path) -> dict:
     slope the full render (with water) follows, over all tracks."""
     import torch
 
+    from seathru.eval.report import followed_share
     from seathru.eval.track_slope import colour_slope_summary, far_tracks
     from seathru.io.model import load_model
     from seathru.io.tracks import (SPARSE_DIR, opacity_in_front, rendered_colours,
@@ -81,7 +82,7 @@ def track_scores(run: Path, cameras_path: Path) -> dict:
     model_path = run / "train" / "model.pt"
     if not (cameras.root / SPARSE_DIR).is_dir() or not model_path.is_file():
         return {"fog_all": None, "fog_far": None, "reduction_near": None, "reduction_far": None,
-                "reproduced": None}
+                "reproduced": None, "followed": None}
     torch.set_num_threads(1)
     obs = track_observations(cameras, cameras.root / SPARSE_DIR)
     model = load_model(model_path)
@@ -99,6 +100,9 @@ def track_scores(run: Path, cameras_path: Path) -> dict:
         scores[f"reduction_{name}"] = summary.get("reduction")
         if name == "all":
             scores["reproduced"] = summary.get("reproduced")
+            scores["followed"] = followed_share(
+                *(list(zip(summary[key]["slope"], summary[key]["stderr"]))
+                  for key in ("input", "rendered")))
     return {"fog_all": float(fog.mean()), "fog_far": float(fog[far].mean()), **scores}
 
 
@@ -147,7 +151,9 @@ def main() -> None:
              "object opacity in front of the tracked surfaces (before 0.8 of the point's "
              "range), all observations / the farthest quarter. Reduction by range: the nearest "
              "90% of tracks / the farthest 10% (each track's median range). Followed: the full "
-             "render's slope (with water) as a share of the input's, all tracks: a model that "
+             "render's slope (with water) as a share of the input's, all tracks, per channel and "
+             "(in brackets) pooled over the channels whose input slope is twice its standard "
+             "error, as the report judges it: a model that "
              "does not follow the input's slope takes it out of the restored render whether or "
              "not it removed the water.", "",
              "| run | capacity | medium | open water (% of pixels) | of it empty (%) | "
@@ -166,7 +172,7 @@ def main() -> None:
             f"{_percentages(tracks.get('reduction'))} | "
             f"{_fmt(row['fog_all'], 1, 100)} / {_fmt(row['fog_far'], 1, 100)} | "
             f"{_percentages(row['reduction_near'])} / {_percentages(row['reduction_far'])} | "
-            f"{_percentages(row['reproduced'])} |")
+            f"{_percentages(row['reproduced'])} ({_fmt(row['followed'], 0, 100)}%) |")
     lines += ["", "Evidence of water per run (selection.json):", ""]
     lines += [f"- {row['run']}: {'; '.join(row['evidence']) or 'none'}" for row in rows]
     args.out.write_text("\n".join(lines) + "\n")
