@@ -119,3 +119,22 @@ def test_water_that_could_not_be_checked_is_flagged_with_open_intervals(tmp_path
     # no water, nothing to flag
     assert WaterReport.from_parameters({**GLOBAL_PARAMS, "mode": "off"}, 0.5,
                                        {"skipped": reason}).uncertainty is None
+
+
+def test_open_water_below_the_horizon_is_written_with_its_least_surface_range(tmp_path):
+    half = {k: [0.01, 0.5, 0.01] for k in ("sigma_attn", "sigma_bs", "c_med")}
+    assessment = {"halfwidth95": half,
+                  "determined": {k: [True, False, True] for k in half},
+                  "surface_fit": {k: list(GLOBAL_PARAMS[k]) for k in half},
+                  "pixels": 1000, "groups": 50, "open_water_beyond": 2.0}
+    report = WaterReport.from_parameters(GLOBAL_PARAMS, 0.5, assessment)
+    below = report.to_dict()["uncertainty"]["open_water_below_horizon"]
+    assert below["least_surface_range"] == pytest.approx(4.0)     # 2 normalised / 0.5
+    assert "below the horizon" in below["note"]
+    assert "below the horizon" in report.undetermined_message()
+    write_water(tmp_path / "water.json", report)
+    assert read_water(tmp_path / "water.json") == report
+    plain = WaterReport.from_parameters(GLOBAL_PARAMS, 0.5, {**assessment,
+                                                             "open_water_beyond": None})
+    assert "open_water_below_horizon" not in plain.to_dict()["uncertainty"]
+    assert "horizon" not in plain.undetermined_message()

@@ -7,9 +7,10 @@ import pytest
 import torch
 
 from seathru.nerf.water_fit import (WaterFit, brightness_weights, cluster_variances,
-                                     dark_pixels, fit_water, group_scores, interval_determined,
-                                     laplace_halfwidths, noise_allowance, projected_loss,
-                                     robust_halfwidths, surface_data, voxel_groups)
+                                     dark_pixels, far_surface_range, fit_water, group_scores,
+                                     interval_determined, laplace_halfwidths, noise_allowance,
+                                     projected_loss, robust_halfwidths, surface_behind_open_water,
+                                     surface_data, voxel_groups)
 
 TRUE = {"sigma_attn": [0.55, 0.25, 0.20], "sigma_bs": [0.45, 0.30, 0.25],
         "c_med": [0.08, 0.20, 0.30]}
@@ -531,3 +532,76 @@ def test_surfaces_pulling_the_veiling_light_off_the_open_water_widen_its_interva
         "the misplaced surfaces should pull c_med off the truth"
     for value, half, true in zip(fit.c_med, spread.halfwidth["c_med"], TRUE["c_med"]):
         assert abs(value - true) <= half
+
+
+def test_open_water_below_the_horizon_is_used_only_where_none_looks_above():
+    rng = np.random.default_rng(11)
+    count = 4000
+    origins = torch.zeros(count, 3, dtype=torch.float64)
+    origins[:, 0] = torch.from_numpy(rng.uniform(0, 5, count))
+    directions = torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64).expand(count, 3)
+    depth = torch.from_numpy(rng.uniform(1, 6, count))
+    opacity = torch.ones(count, dtype=torch.float64)
+    rgb = torch.full((count, 3), 0.3, dtype=torch.float64) + 0.001 * torch.rand(count, 3)
+    rgb[:600] = torch.tensor([0.05, 0.2, 0.3], dtype=torch.float64)
+    photo = torch.zeros(count, dtype=torch.bool)
+    photo[:600] = True
+    below = torch.zeros(count, dtype=torch.bool)
+    below[400:600] = True                                  # a third of the open water
+    common = dict(voxel=100.0, min_pixels=10, open_water_opacity=0.1, open_water=photo)
+    mixed = surface_data(origins, directions, rgb, depth, opacity, below_horizon=below, **common)
+    assert int(torch.isinf(mixed.ranges).sum()) == 400 and not mixed.open_water_below_horizon
+    assert len(mixed.ranges) == count - 200          # far seabed: neither water nor surface
+    below[:600] = True
+    orbit = surface_data(origins, directions, rgb, depth, opacity, below_horizon=below, **common)
+    assert int(torch.isinf(orbit.ranges).sum()) == 600 and orbit.open_water_below_horizon
+    unknown = surface_data(origins, directions, rgb, depth, opacity, **common)
+    assert int(torch.isinf(unknown.ranges).sum()) == 600 and not unknown.open_water_below_horizon
+
+
+def test_surface_behind_open_water_takes_out_what_that_surface_adds():
+    ranges, observed, ids, groups = _observations(np.random.default_rng(12), near=1.0, far=6.0)
+    theta = torch.tensor(TRUE["sigma_attn"] + TRUE["sigma_bs"] + TRUE["c_med"],
+                         dtype=torch.float64)
+    attn, bs, c_med = (np.array(TRUE[k]) for k in KEYS)
+    near = ranges <= ranges.median()
+    clean = (observed[near].numpy() - c_med * (1 - np.exp(-bs * ranges[near, None].numpy()))) \
+        * np.exp(attn * ranges[near, None].numpy())
+    bright = np.quantile(clean, 0.9, axis=0)
+    beyond = 8.0
+    # open water that is really the bright surface 8 units away
+    seabed = bright * np.exp(-attn * beyond) + c_med * (1 - np.exp(-bs * beyond))
+    ranges = torch.cat([ranges, torch.full((5,), float("inf"), dtype=torch.float64)])
+    observed = torch.cat([observed, torch.from_numpy(np.tile(seabed, (5, 1)))])
+    as_bright, as_black = surface_behind_open_water(theta, ranges, observed, beyond)
+    assert as_bright[-5:].numpy() == pytest.approx(np.tile(c_med, (5, 1)), rel=1e-9)
+    assert as_black[-5:].numpy() == pytest.approx(
+        np.tile(seabed + c_med * np.exp(-bs * beyond), (5, 1)), rel=1e-9)
+    assert torch.equal(as_bright[:-5], observed[:-5]) and torch.equal(as_black[:-5],
+                                                                     observed[:-5])
+    assert far_surface_range(ranges) == pytest.approx(
+        float(torch.quantile(ranges[:-5], 0.9)), rel=1e-12)
+
+
+def test_far_seabed_taken_for_open_water_widens_the_interval_when_it_lies_below_the_horizon():
+    """An orbit: surfaces at 2.5-6 units, and the 'open water' at the top of the frames is
+    seabed 8 units away. Its colour pins c_med 3-18% off the truth with narrow intervals (they
+    miss it for seeds 15-20); allowed for as a surface behind the open water, they hold it."""
+    rng = np.random.default_rng(15)
+    ranges, observed, ids, groups = _observations(rng, groups=200, per_group=8, near=2.5,
+                                                  far=6.0, noise=0.02)
+    attn, bs, c_med = (np.array(TRUE[k]) for k in KEYS)
+    seabed = 0.4 * np.exp(-attn * 8.0) + c_med * (1 - np.exp(-bs * 8.0))
+    data = _with_open_water((ranges, observed, ids, groups), seabed, rng, pixels=400,
+                            noise=0.003)
+    fit = fit_water(*data, START)
+    assert max(abs(c / t - 1) for c, t in zip(fit.c_med, TRUE["c_med"])) > 0.1
+    plain = robust_halfwidths(fit, *data)
+    assert any(abs(v - t) > h for v, h, t in zip(fit.c_med, plain.halfwidth["c_med"],
+                                                 TRUE["c_med"]))
+    allowed = robust_halfwidths(fit, *data, open_water_beyond=far_surface_range(data[0]))
+    assert "open_water_surface" in allowed.splits
+    for key in KEYS:
+        for value, half, true in zip(getattr(fit, key), allowed.halfwidth[key], TRUE[key]):
+            assert abs(value - true) <= half, key
+    assert not all(allowed.determined["c_med"])

@@ -22,8 +22,11 @@ With a global medium, ``uncertainty`` says how well the views determine each num
                      "surface_fit": {...},       # the water fit on the model's own surfaces
                      "normalised": {"halfwidth95": {...}, "surface_fit": {...}},
                      "pixels": int, "groups": int,
-                     "not_assessed": "..."}      # only where there were no surfaces to fit
+                     "not_assessed": "...",      # only where there were no surfaces to fit
                                                  # on: every interval open, nothing determined
+                     "open_water_below_horizon": {"least_surface_range": z, "note": "..."}}
+                         # only where the photographs' open water all looks below the horizon:
+                         # the intervals allow for seabed from range z (source units) behind it
 
 (per-source units like the top level; ``hi`` is null where the views do not bound it).
 
@@ -55,6 +58,10 @@ VIEW_NOTE = ("direction-dependent water (mode view: all of it; veiling: the veil
              "values are the mean over training rays; min and max over the same rays")
 MODES = ("off", "global", "view", "veiling")
 DIRECTIONAL = ("view", "veiling")   # water (or its veiling light) that depends on direction
+BELOW_HORIZON_NOTE = (
+    "the photographs' open water all looks below the horizon (seathru.geometry.upright): it may "
+    "be seabed beyond the surfaces the views show, whose colour still holds some of its own "
+    "light; the intervals allow for such a surface from least_surface_range on")
 UNCERTAINTY_METHOD = (
     "95% prediction intervals around the trained value: a water fit on the model's own "
     "surfaces (seathru.nerf.water_fit.robust_halfwidths) gives a cluster-robust statistical "
@@ -155,6 +162,8 @@ class WaterReport:
                                            for k in WATER_KEYS},
                            "pixels": int(assessment["pixels"]),
                            "groups": int(assessment["groups"])}
+            if assessment.get("open_water_beyond") is not None:
+                uncertainty["open_water_beyond"] = float(assessment["open_water_beyond"])
         return cls(mode=str(params["mode"]), scale=float(scale),
                    normalised=WaterValues.from_mapping(params, "parameters"), **bounds,
                    uncertainty=uncertainty)
@@ -202,7 +211,10 @@ class WaterReport:
                                                for k in WATER_KEYS},
                                "surface_fit": u["surface_fit"]},
                 "pixels": u["pixels"], "groups": u["groups"],
-                **({"not_assessed": u["not_assessed"]} if u.get("not_assessed") else {})}
+                **({"not_assessed": u["not_assessed"]} if u.get("not_assessed") else {}),
+                **({"open_water_below_horizon": {
+                    "least_surface_range": u["open_water_beyond"] / self.scale,
+                    "note": BELOW_HORIZON_NOTE}} if u.get("open_water_beyond") else {})}
 
     def undetermined_message(self) -> str | None:
         """What the train step warns about the water the views do not determine, or None."""
@@ -213,8 +225,11 @@ class WaterReport:
             return (f"the water could not be checked on the model's own surfaces "
                     f"({not_assessed}): none of its values is known to be determined by the "
                     "views, and the restored images rest on them")
+        below = " (the photographs' open water all looks below the horizon: it may be far " \
+            "seabed, not the veiling light)" if (self.uncertainty or {}).get(
+                "open_water_beyond") else ""
         return (f"the views do not determine {', '.join(self.undetermined)} of the water (95% "
-                "interval wider than +-25%): the restored images rest on them")
+                f"interval wider than +-25%){below}: the restored images rest on them")
 
     @property
     def undetermined(self) -> list[str]:
@@ -254,6 +269,10 @@ class WaterReport:
                     "pixels": int(u["pixels"]), "groups": int(u["groups"])}
                 if u.get("not_assessed"):
                     uncertainty["not_assessed"] = str(u["not_assessed"])
+                below = u.get("open_water_below_horizon")
+                if isinstance(below, Mapping) and below.get("least_surface_range") is not None:
+                    uncertainty["open_water_beyond"] = \
+                        float(below["least_surface_range"]) * float(scale)
             return cls(mode=mode, scale=float(scale),
                        normalised=WaterValues.from_mapping(data.get("normalised"), "normalised"),
                        **bounds, uncertainty=uncertainty)

@@ -136,6 +136,13 @@ class MediumConfig:
                   "light; with open water in the photographs (seathru.radiometry.open_water), "
                   "the rays they show as open water are taken instead, whatever the model's "
                   "opacity (0 = do not use open water)")
+    horizon_margin: float = setting(
+        5.0, help="open water in the photographs that looks more than this many degrees below "
+                  "the horizon (the vertical the cameras imply: seathru.geometry.upright) may "
+                  "be far seabed: where enough open water looks above it, only that pins "
+                  "c_med; where none does, water.json's intervals allow for a surface behind "
+                  "it (simulated orbits: all of their 'open water' was seabed 6-11 m away, "
+                  "10-23% off the veiling light); negative = the horizon is not used")
     open_water_from: float = setting(
         1.1, help="where the photographs show no open water in view: progress from which "
                   "refits take the model's empty rays as open water (above 1, the default: "

@@ -299,10 +299,12 @@ def scene_from_frames(frames, near: float, far: float, centre, scale: float, mea
 
     The box is where most cameras look (``rays.covisible_box``); ``typical_range`` (twice the
     median frame near bound) sets the initial water coefficients; ``mean_rgb`` (the training
-    images' mean colour) the initial veiling light.
+    images' mean colour) the initial veiling light; ``up`` (``seathru.geometry.upright``) the
+    vertical, which tells open water above the horizon from far seabed below it.
     """
     import numpy as np
 
+    from seathru.geometry.upright import estimate_up
     from seathru.nerf.rays import covisible_box
 
     box_min, box_max = covisible_box(frames, min_fraction=min_fraction)
@@ -310,6 +312,9 @@ def scene_from_frames(frames, near: float, far: float, centre, scale: float, mea
     scene = {"box_min": [float(v) for v in box_min], "box_max": [float(v) for v in box_max],
              "near": float(near), "far": float(far), "typical_range": typical,
              "normalisation": {"centre": [float(v) for v in centre], "scale": float(scale)}}
+    if len(frames):
+        up = estimate_up(np.stack([f.c2w_array for f in frames]))
+        scene["up"], scene["up_method"] = list(up.vector), up.method
     if mean_rgb is not None:
         scene["c_med_init"] = [float(v) for v in mean_rgb]
     return scene

@@ -40,8 +40,9 @@ from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruc
 from seathru.nerf.model import SeaThruModel
 from seathru.nerf.rays import RayBatch, RayDataset
 from seathru.nerf.medium import DIRECTIONAL_MODES
-from seathru.nerf.water_fit import (SurfaceData, fit_water, interval_determined,
-                                    laplace_halfwidths, robust_halfwidths, surface_data)
+from seathru.nerf.water_fit import (SurfaceData, far_surface_range, fit_water,
+                                    interval_determined, laplace_halfwidths, robust_halfwidths,
+                                    surface_data)
 
 CHECKPOINT_FORMAT = "seathru-train-checkpoint/1"
 WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
@@ -568,10 +569,12 @@ class Trainer:
         diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
         open_water = refit_open_water_opacity(c.medium, rays.open_water is not None,
                                               self._progress())
+        below = below_horizon(rays.directions, model.scene.get("up"), c.medium.horizon_margin)
         return [surface_data(rays.origins, rays.directions, rays.rgb, rendered["depth_median"],
                              rendered["opacity"], factor * c.medium.refit_voxel * diagonal,
                              c.medium.refit_opacity, open_water_opacity=open_water,
-                             open_water=rays.open_water) for factor in voxel_factors]
+                             open_water=rays.open_water, below_horizon=below)
+                for factor in voxel_factors]
 
     @torch.no_grad()
     def refit_water(self) -> dict:
@@ -642,8 +645,10 @@ class Trainer:
                         model.water_parameters(), medium.refit_steps, model.medium.colour_max,
                         data.dark if medium.dark_pixel_bound else None,
                         balance_brightness=medium.balance_brightness)
+        beyond = far_surface_range(data.ranges) if data.open_water_below_horizon else None
         spread = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,
                                    colour_max=model.medium.colour_max,
+                                   open_water_beyond=beyond,
                                    dark=data.dark if medium.dark_pixel_bound else None,
                                    range_error=medium.interval_range_error,
                                    min_relative=medium.interval_floor,
@@ -654,7 +659,8 @@ class Trainer:
                 "determined": interval_determined(trained or model.water_parameters(), fit,
                                                   spread.halfwidth),
                 "pixels": fit.pixels, "groups": fit.groups,
-                "effective_samples": spread.effective_samples}
+                "effective_samples": spread.effective_samples,
+                **({"open_water_beyond": beyond} if beyond is not None else {})}
 
     def _progress(self) -> float:
         c = self.config
@@ -895,6 +901,16 @@ class ThreadTuner:
             self.current = best
             torch.set_num_threads(best)
             self.times = {}
+
+
+def below_horizon(directions: torch.Tensor, up, margin_deg: float) -> torch.Tensor | None:
+    """(R,) bool: the unit ``directions`` (R, 3) that look more than ``margin_deg`` below the
+    horizon of the vertical ``up`` (3 floats, or None: not known, as in models saved before
+    the scene kept it); None where the horizon is not used (negative margin)."""
+    if up is None or margin_deg < 0:
+        return None
+    vertical = torch.as_tensor(up, dtype=directions.dtype, device=directions.device)
+    return directions @ vertical < -math.sin(math.radians(margin_deg))
 
 
 def refit_open_water_opacity(medium, from_images: bool, progress: float) -> float:

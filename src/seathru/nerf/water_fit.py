@@ -50,12 +50,15 @@ class SurfaceData:
     ids: Tensor         # (N,) voxel group
     groups: int
     dark: tuple[Tensor, Tensor] | None = None  # (K,) range bins, (K, 3) darkest pixel values
+    # the open-water pixels (range inf) all look below the horizon: they may be far seabed
+    open_water_below_horizon: bool = False
 
 
 def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor,
                  opacity: Tensor, voxel: float, min_opacity: float = 0.9,
                  min_pixels: int = 1000, open_water_opacity: float = 0.0,
-                 open_water: Tensor | None = None) -> SurfaceData | str:
+                 open_water: Tensor | None = None, below_horizon: Tensor | None = None,
+                 min_above_horizon: float = 0.2) -> SurfaceData | str:
     """The pixels a water fit can use, from rays rendered by the model.
 
     Args:
@@ -77,6 +80,15 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
 
             Of these, only pixels of the open water's typical colour are used
             (:func:`typical_open_water`).
+        below_horizon: (R,) bool or None: the rays that look below the horizon
+            (``seathru.geometry.upright``). Open water there may be a far seabed whose colour
+            still holds some of its direct light (on simulated orbits, all of the flagged
+            "open water" was seabed 6-11 m away, 10-23% off the veiling light). Where at least
+            ``min_above_horizon`` of the open-water pixels look above the horizon, only those
+            are used; otherwise all are, and the data say so
+            (``SurfaceData.open_water_below_horizon``: the intervals then allow for a surface
+            behind them, :func:`robust_halfwidths`).
+        min_above_horizon: see ``below_horizon``.
 
     Returns:
         the data, or a sentence saying why there is not enough of it.
@@ -92,11 +104,20 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
     ranged = ranged_groups(ranges, ids, groups)
     if int(ranged.sum()) < min_pixels:
         return f"only {int(ranged.sum())} surface pixels are seen over a spread of ranges"
+    below = False
     if open_water is None:
         water = opacity < open_water_opacity
+    elif open_water_opacity > 0:
+        flagged = open_water
+        if below_horizon is not None and bool(open_water.any()):
+            above = open_water & ~below_horizon
+            if int(above.sum()) >= min_above_horizon * int(open_water.sum()):
+                flagged = above
+            else:
+                below = True
+        water = flagged & typical_open_water(rgb, flagged)
     else:
-        water = open_water & typical_open_water(rgb, open_water) if open_water_opacity > 0 \
-            else torch.zeros_like(open_water)
+        water = torch.zeros_like(open_water)
     # With open water in the data, which pins c_med and with it the backscatter, only pixels
     # of surfaces that several views place alike bound the backscatter: a dark pixel given
     # too long a range (a surface the model placed behind its true place) bounds it by the
@@ -116,7 +137,8 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
         observed = torch.cat([observed, rgb[water].double().cpu()])
         ids = torch.cat([ids, torch.full((int(water.sum()),), groups, dtype=ids.dtype)])
         groups += 1
-    return SurfaceData(ranges, observed, ids, groups, dark)
+    return SurfaceData(ranges, observed, ids, groups, dark,
+                       open_water_below_horizon=below and bool(water.any()))
 
 
 DARK_QUANTILE = 0.01
@@ -488,8 +510,8 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
                       dark: tuple[Tensor, Tensor] | None = None, steps: int = 100,
                       min_groups: int = 20, range_error: float = 0.0,
                       min_relative: float = 0.0,
-                      regrouped: Sequence[tuple[Tensor, Tensor, Tensor, int]] = ()
-                      ) -> WaterUncertainty:
+                      regrouped: Sequence[tuple[Tensor, Tensor, Tensor, int]] = (),
+                      open_water_beyond: float | None = None) -> WaterUncertainty:
     """95% intervals of the fitted water that hold model error: a cluster-robust statistical
     part and a systematic part from how much parts of the data disagree.
 
@@ -523,7 +545,10 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     ``max(0, d^2 - (var_part - var_whole))`` for a part against the whole, ``d^2`` for the
     bound. With open water, how far the fit's ``c_med`` lies from the open-water pixels' mean
     colour is one more ``d^2`` (surfaces placed at the wrong range pull it off the water's own
-    colour). The interval is a prediction interval, ``1.96 sqrt(var + max tau^2)``: the fit's
+    colour). With ``open_water_beyond``, the open-water pixels may instead be surfaces at that
+    range or farther (:func:`surface_behind_open_water`): the fit is redone on their colour
+    less what such a surface would add, as bright as the scene's bright surfaces or black, and
+    the larger move is one more ``d^2``. The interval is a prediction interval, ``1.96 sqrt(var + max tau^2)``: the fit's
     error is taken to be one more draw of the error that makes parts of the data disagree.
     With independent noise ``tau^2`` is an estimate of zero and the coverage stays near 95%
     (97% measured); on fits on trained models' own surfaces it goes from 61-72% (curvature)
@@ -551,6 +576,9 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
             them to another measurement: of the order of 1%).
         regrouped: ``(ranges, observed, ids, groups)`` of the same rays grouped at other voxel
             sizes (:func:`surface_data`); empty leaves the comparison out.
+        open_water_beyond: where the open-water pixels may be a far surface (they look below
+            the horizon: ``SurfaceData.open_water_below_horizon``), the least range of that
+            surface (:func:`far_surface_range`); None leaves the comparison out.
 
     Returns:
         half-widths and flags per parameter and channel; ``statistical`` and ``systematic``
@@ -600,6 +628,12 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
         between["open_water_pull"] = pull
     if dark is not None and whole is not None:
         between["dark_bound"] = (whole[0] - theta) ** 2
+    if open_water_beyond is not None and bool(water.any()) and whole is not None:
+        moves = [_theta(fit_water(ranges, shifted, ids, groups, start, steps, colour_max,
+                                  balance_brightness=balance)) - whole[0]
+                 for shifted in surface_behind_open_water(theta, ranges, observed,
+                                                          open_water_beyond)]
+        between["open_water_surface"] = _finite_variance(torch.stack(moves).pow(2).amax(0))
     if range_error > 0 and whole is not None:
         noise = torch.randn(ranges.shape, generator=torch.Generator().manual_seed(0),
                             dtype=ranges.dtype)
@@ -622,6 +656,59 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     result.systematic = _by_name((1.96 * tau2.sqrt()).tolist())
     result.splits = {name: (1.96 * value.sqrt()).tolist() for name, value in between.items()}
     return result
+
+
+def far_surface_range(ranges: Tensor, quantile: float = 0.9) -> float:
+    """The range beyond which the model places few surfaces: ``quantile`` of the finite
+    ``ranges`` (N,). Open water below the horizon lies behind the surfaces the views show, so
+    a seabed behind it is at least about this far (on simulated orbits the 0.9 quantile was
+    5-7 m, the seabed taken for open water 6-11 m)."""
+    finite = ranges[torch.isfinite(ranges)]
+    return float(torch.quantile(finite.double(), quantile)) if finite.numel() else math.inf
+
+
+def surface_behind_open_water(theta: Tensor, ranges: Tensor, observed: Tensor, beyond: float,
+                              bright_quantile: float = 0.9) -> list[Tensor]:
+    """The open-water pixels' colours (range inf) as they would be without a surface at range
+    ``beyond`` behind them: two copies of ``observed`` (N, 3), one for a surface as bright as
+    the scene's bright surfaces and one for a black one.
+
+    A surface of clean colour ``J`` at range ``z`` shows ``J exp(-sigma_attn z) + c_med (1 -
+    exp(-sigma_bs z))``, which differs from the veiling light by ``J exp(-sigma_attn z) - c_med
+    exp(-sigma_bs z)``; the difference shrinks with range, so ``beyond`` (the least range such
+    a surface could be at) bounds it. ``J`` of the bright surfaces: the ``bright_quantile`` of
+    the clean colours the water ``theta`` implies for the nearer half of the surface pixels
+    (farther ones amplify the range error).
+
+    Args:
+        theta: (9,) the water (``sigma_attn``, ``sigma_bs``, ``c_med``).
+        ranges: (N,) ranges, inf for open water; observed: (N, 3) pixel colours.
+        beyond: least range of a surface behind the open water.
+        bright_quantile: which clean colour counts as bright.
+
+    Returns:
+        [bright, black]: (N, 3) each, ``observed`` with the open water's colours changed.
+
+    Example::
+
+        for shifted in surface_behind_open_water(theta, z, rgb, far_surface_range(z)):
+            moved = fit_water(z, shifted, ids, groups, start)
+    """
+    theta = theta.double()
+    attn, bs, c_med = theta[0:3], theta[3:6], theta[6:9]
+    finite = torch.isfinite(ranges)
+    near = finite & (ranges <= ranges[finite].median())
+    z = ranges[near, None].double()
+    clean = (observed[near].double() - c_med * (1 - torch.exp(-bs * z))) * torch.exp(attn * z)
+    bright = torch.quantile(clean, bright_quantile, dim=0).clamp_min(0.0)
+    veil_left = c_med * torch.exp(-bs * beyond)
+    shifts = [bright * torch.exp(-attn * beyond) - veil_left, -veil_left]
+    out = []
+    for shift in shifts:
+        shifted = observed.double().clone()
+        shifted[~finite] = (shifted[~finite] - shift).clamp_min(1e-6)
+        out.append(shifted)
+    return out
 
 
 def interval_determined(trained: dict, surface_fit: WaterFit, halfwidth: dict[str, list[float]],

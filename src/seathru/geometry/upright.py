@@ -1,0 +1,65 @@
+"""Which way is up in a dive's world frame, from its cameras alone.
+
+SfM leaves the world frame's orientation arbitrary. A diver keeps the camera nearly level (small
+roll), so each camera's x axis (image right) is nearly horizontal; the vertical is the direction
+all of them are perpendicular to. When the diver looked in one direction only (a transect), the
+x axes are all alike and leave the vertical free to turn about them; then the cameras' mean up
+axis is taken, which is off by the dive's mean pitch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class UpEstimate:
+    vector: tuple[float, float, float]   # unit, world frame
+    method: str                          # "level cameras" or "mean camera up"
+
+
+def estimate_up(c2w: np.ndarray, min_spread: float = 0.05) -> UpEstimate:
+    """The vertical of the world frame, from camera-to-world poses with OpenCV axes.
+
+    Args:
+        c2w: ``(N, 3, 3)`` or ``(N, 3, 4)`` / ``(N, 4, 4)`` camera-to-world poses (x right,
+            y down, z forward).
+        min_spread: the x axes must span a plane for their normal to be the vertical: the
+            middle eigenvalue of their second-moment matrix, over the largest, at least this
+            (0.05: views about 25 degrees apart in heading or more). Below it, the mean of the
+            cameras' up axes (``-y``) is returned.
+
+    Returns:
+        the unit up vector (pointing to the side the cameras' up axes point to on average) and
+        the method used.
+
+    Example::
+
+        up = np.array(estimate_up(poses).vector)
+        elevation = np.degrees(np.arcsin(directions @ up))  # above the horizon > 0
+    """
+    rotations = np.asarray(c2w, dtype=np.float64)[:, :3, :3]
+    if len(rotations) == 0:
+        raise ValueError("estimate_up needs at least one camera")
+    rights = rotations[:, :, 0]
+    ups = -rotations[:, :, 1]
+    mean_up = ups.mean(0)
+    if np.linalg.norm(mean_up) < 1e-9:
+        mean_up = ups[0]
+    moments = rights.T @ rights / len(rights)
+    values, vectors = np.linalg.eigh(moments)   # ascending
+    if values[1] >= min_spread * values[2]:
+        up, method = vectors[:, 0], "level cameras"
+        if up @ mean_up < 0:
+            up = -up
+    else:
+        up, method = mean_up, "mean camera up"
+    up = up / np.linalg.norm(up)
+    return UpEstimate(tuple(float(v) for v in up), method)
+
+
+def elevation_sines(directions: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Sine of each unit direction's angle above the horizon ``(..., 3) -> (...)``."""
+    return np.asarray(directions, dtype=np.float64) @ np.asarray(up, dtype=np.float64)

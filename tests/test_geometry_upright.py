@@ -1,0 +1,66 @@
+"""Tests for seathru.geometry.upright: the vertical of a dive's world frame from its cameras."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from seathru.geometry.upright import elevation_sines, estimate_up
+
+
+def _camera(heading: float, pitch: float, roll: float = 0.0) -> np.ndarray:
+    """Camera-to-world rotation (OpenCV axes) in a z-up world: looking along ``heading`` (rad
+    from +x), ``pitch`` above the horizon, rolled by ``roll``."""
+    forward = np.array([math.cos(pitch) * math.cos(heading),
+                        math.cos(pitch) * math.sin(heading), math.sin(pitch)])
+    right = np.array([math.sin(heading), -math.cos(heading), 0.0])
+    down = np.cross(forward, right)
+    rotation = np.stack([right, down, forward], axis=1)
+    return rotation @ Rotation.from_rotvec(roll * np.array([0.0, 0.0, 1.0])).as_matrix()
+
+
+def _angle(a, b) -> float:
+    return math.degrees(math.acos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b),
+                                          -1, 1)))
+
+
+@pytest.mark.parametrize("arc_deg", [360.0, 60.0])
+def test_level_cameras_give_the_vertical_of_a_pitched_down_orbit(arc_deg):
+    rng = np.random.default_rng(0)
+    world = Rotation.random(random_state=1).as_matrix()       # SfM's arbitrary orientation
+    headings = np.radians(np.linspace(0.0, arc_deg, 16))
+    poses = np.stack([world @ _camera(h, math.radians(-40), rng.normal(0, math.radians(2)))
+                      for h in headings])
+    up = estimate_up(poses)
+    assert up.method == "level cameras"
+    # roll jitter of 2 degrees tilts the estimate by about that over the heading spread
+    assert _angle(up.vector, world @ np.array([0.0, 0.0, 1.0])) < (1.5 if arc_deg > 180 else 5.0)
+    # what the cameras' mean up axis alone would give on the short arc: off by the pitch
+    mean_up = -poses[:, :, 1].mean(0)
+    if arc_deg < 90:
+        assert _angle(mean_up, world @ np.array([0.0, 0.0, 1.0])) > 20.0
+
+
+def test_cameras_facing_one_way_fall_back_to_their_mean_up_axis():
+    poses = np.stack([_camera(0.01 * i, math.radians(-45)) for i in range(10)])
+    up = estimate_up(poses)
+    assert up.method == "mean camera up"
+    assert np.allclose(up.vector, -poses[:, :, 1].mean(0) / np.linalg.norm(
+        poses[:, :, 1].mean(0)))
+    assert _angle(up.vector, [0.0, 0.0, 1.0]) == pytest.approx(45.0, abs=0.5)
+
+
+def test_elevation_of_rays_above_and_below_the_horizon():
+    up = np.array([0.0, 0.0, 1.0])
+    directions = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(0.3), math.sin(0.3)],
+                           [0.0, math.cos(0.3), -math.sin(0.3)]])
+    assert elevation_sines(directions, up) == pytest.approx([0.0, math.sin(0.3),
+                                                            -math.sin(0.3)])
+
+
+def test_no_cameras_is_an_error():
+    with pytest.raises(ValueError, match="at least one camera"):
+        estimate_up(np.zeros((0, 4, 4)))
