@@ -64,3 +64,12 @@ def test_elevation_of_rays_above_and_below_the_horizon():
 def test_no_cameras_is_an_error():
     with pytest.raises(ValueError, match="at least one camera"):
         estimate_up(np.zeros((0, 4, 4)))
+
+
+def test_cameras_turned_every_way_have_no_common_vertical():
+    rotations = Rotation.random(12, random_state=3).as_matrix()
+    assert estimate_up(rotations) is None
+    # landscape and portrait frames mixed: half the x axes are vertical
+    mixed = np.stack([_camera(h, 0.0, math.pi / 2 if i % 2 else 0.0)
+                      for i, h in enumerate(np.linspace(0, 2 * math.pi, 12, endpoint=False))])
+    assert estimate_up(mixed) is None

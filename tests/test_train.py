@@ -423,3 +423,14 @@ def test_explicit_view_dependence_runs_no_trial(default_scene):
     trainer.run()
     assert trainer.view_selection["chosen"] == "off"
     assert "trial_steps" not in trainer.view_selection and not trainer.model.field.uses_view
+
+
+def test_below_horizon_marks_rays_looking_down_by_more_than_the_margin():
+    from seathru.nerf.training import below_horizon
+    angles = torch.tensor([-30.0, -6.0, -4.0, 0.0, 20.0])
+    radians = torch.deg2rad(angles)
+    directions = torch.stack([torch.cos(radians), torch.zeros(5), torch.sin(radians)], -1)
+    below = below_horizon(directions, [0.0, 0.0, 1.0], 5.0)
+    assert below.tolist() == [True, True, False, False, False]
+    assert below_horizon(directions, None, 5.0) is None        # models saved without it
+    assert below_horizon(directions, [0.0, 0.0, 1.0], -1.0) is None

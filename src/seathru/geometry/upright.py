@@ -9,6 +9,7 @@ axis is taken, which is off by the dive's mean pitch.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,7 +21,8 @@ class UpEstimate:
     method: str                          # "level cameras" or "mean camera up"
 
 
-def estimate_up(c2w: np.ndarray, min_spread: float = 0.05) -> UpEstimate:
+def estimate_up(c2w: np.ndarray, min_spread: float = 0.05, max_tilt_deg: float = 20.0
+                ) -> UpEstimate | None:
     """The vertical of the world frame, from camera-to-world poses with OpenCV axes.
 
     Args:
@@ -30,10 +32,14 @@ def estimate_up(c2w: np.ndarray, min_spread: float = 0.05) -> UpEstimate:
             middle eigenvalue of their second-moment matrix, over the largest, at least this
             (0.05: views about 25 degrees apart in heading or more). Below it, the mean of the
             cameras' up axes (``-y``) is returned.
+        max_tilt_deg: the cameras must agree on it: the x axes' RMS angle to the horizon, or
+            (mean camera up) the up axes' RMS angle to their mean, at most this. Frames shot
+            in portrait and landscape mixed, or a camera turned about freely, have no common
+            vertical.
 
     Returns:
         the unit up vector (pointing to the side the cameras' up axes point to on average) and
-        the method used.
+        the method used; None where the cameras do not agree on one.
 
     Example::
 
@@ -50,12 +56,18 @@ def estimate_up(c2w: np.ndarray, min_spread: float = 0.05) -> UpEstimate:
         mean_up = ups[0]
     moments = rights.T @ rights / len(rights)
     values, vectors = np.linalg.eigh(moments)   # ascending
+    largest_tilt = math.sin(math.radians(max_tilt_deg)) ** 2
     if values[1] >= min_spread * values[2]:
         up, method = vectors[:, 0], "level cameras"
         if up @ mean_up < 0:
             up = -up
+        tilt = values[0] / max(values.sum(), 1e-12)      # mean squared sine of the x axes
     else:
         up, method = mean_up, "mean camera up"
+        unit = up / np.linalg.norm(up)
+        tilt = float(np.mean(1.0 - np.clip(ups @ unit, -1.0, 1.0) ** 2))
+    if tilt > largest_tilt:
+        return None
     up = up / np.linalg.norm(up)
     return UpEstimate(tuple(float(v) for v in up), method)
 

@@ -314,7 +314,8 @@ def scene_from_frames(frames, near: float, far: float, centre, scale: float, mea
              "normalisation": {"centre": [float(v) for v in centre], "scale": float(scale)}}
     if len(frames):
         up = estimate_up(np.stack([f.c2w_array for f in frames]))
-        scene["up"], scene["up_method"] = list(up.vector), up.method
+        scene["up"] = None if up is None else list(up.vector)
+        scene["up_method"] = "cameras disagree" if up is None else up.method
     if mean_rgb is not None:
         scene["c_med_init"] = [float(v) for v in mean_rgb]
     return scene
