@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from seathru.geometry.upright import elevation_sines, estimate_up
+from seathru.geometry.upright import estimate_up
 
 
 def _camera(heading: float, pitch: float, roll: float = 0.0) -> np.ndarray:
@@ -51,14 +51,6 @@ def test_cameras_facing_one_way_fall_back_to_their_mean_up_axis():
     assert np.allclose(up.vector, -poses[:, :, 1].mean(0) / np.linalg.norm(
         poses[:, :, 1].mean(0)))
     assert _angle(up.vector, [0.0, 0.0, 1.0]) == pytest.approx(45.0, abs=0.5)
-
-
-def test_elevation_of_rays_above_and_below_the_horizon():
-    up = np.array([0.0, 0.0, 1.0])
-    directions = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(0.3), math.sin(0.3)],
-                           [0.0, math.cos(0.3), -math.sin(0.3)]])
-    assert elevation_sines(directions, up) == pytest.approx([0.0, math.sin(0.3),
-                                                            -math.sin(0.3)])
 
 
 def test_no_cameras_is_an_error():

@@ -71,7 +71,3 @@ def estimate_up(c2w: np.ndarray, min_spread: float = 0.05, max_tilt_deg: float =
     up = up / np.linalg.norm(up)
     return UpEstimate(tuple(float(v) for v in up), method)
 
-
-def elevation_sines(directions: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """Sine of each unit direction's angle above the horizon ``(..., 3) -> (...)``."""
-    return np.asarray(directions, dtype=np.float64) @ np.asarray(up, dtype=np.float64)

@@ -59,8 +59,8 @@ VIEW_NOTE = ("direction-dependent water (mode view: all of it; veiling: the veil
 MODES = ("off", "global", "view", "veiling")
 DIRECTIONAL = ("view", "veiling")   # water (or its veiling light) that depends on direction
 BELOW_HORIZON_NOTE = (
-    "the photographs' open water all looks below the horizon (seathru.geometry.upright): it may "
-    "be seabed beyond the surfaces the views show, whose colour still holds some of its own "
+    "the photographs' open water looks below the horizon (seathru.geometry.upright; less than a "
+    "fifth of it above): it may be seabed beyond the surfaces the views show, whose colour still holds some of its own "
     "light; the intervals allow for such a surface from least_surface_range on")
 UNCERTAINTY_METHOD = (
     "95% prediction intervals around the trained value: a water fit on the model's own "
@@ -225,7 +225,7 @@ class WaterReport:
             return (f"the water could not be checked on the model's own surfaces "
                     f"({not_assessed}): none of its values is known to be determined by the "
                     "views, and the restored images rest on them")
-        below = " (the photographs' open water all looks below the horizon: it may be far " \
+        below = " (the photographs' open water looks below the horizon: it may be far " \
             "seabed, not the veiling light)" if (self.uncertainty or {}).get(
                 "open_water_beyond") else ""
         return (f"the views do not determine {', '.join(self.undetermined)} of the water (95% "

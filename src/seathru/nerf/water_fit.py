@@ -50,7 +50,8 @@ class SurfaceData:
     ids: Tensor         # (N,) voxel group
     groups: int
     dark: tuple[Tensor, Tensor] | None = None  # (K,) range bins, (K, 3) darkest pixel values
-    # the open-water pixels (range inf) all look below the horizon: they may be far seabed
+    # the open-water pixels (range inf) look below the horizon (less than a fifth of the
+    # flagged ones above): they may be far seabed
     open_water_below_horizon: bool = False
 
 
@@ -548,8 +549,8 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     colour). With ``open_water_beyond``, the open-water pixels may instead be surfaces at that
     range or farther (:func:`surface_behind_open_water`): the fit is redone on their colour
     less what such a surface would add, as bright as the scene's bright surfaces or black, and
-    the larger move is one more ``d^2``. The interval is a prediction interval, ``1.96 sqrt(var + max tau^2)``: the fit's
-    error is taken to be one more draw of the error that makes parts of the data disagree.
+    the larger move is one more ``d^2``. The interval is a prediction interval,
+    ``1.96 sqrt(var + max tau^2)``: the fit's error is taken to be one more draw of the error that makes parts of the data disagree.
     With independent noise ``tau^2`` is an estimate of zero and the coverage stays near 95%
     (97% measured); on fits on trained models' own surfaces it goes from 61-72% (curvature)
     to 87-90% (``benchmarks/results/water_intervals.md``). An error every part shares alike
