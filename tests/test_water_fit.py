@@ -151,14 +151,19 @@ def test_open_water_pixels_pin_the_veiling_light():
         assert after < before
 
 
-def test_surface_data_keeps_surfaces_seen_over_a_range_and_adds_open_water():
-    rng = np.random.default_rng(4)
-    count = 4000
+def _opaque_rays(rng: np.random.Generator, count: int = 4000):
+    """``count`` parallel rays onto surfaces 1-6 units away, all opaque: origins, directions,
+    depth, opacity."""
     origins = torch.zeros(count, 3, dtype=torch.float64)
     origins[:, 0] = torch.from_numpy(rng.uniform(0, 5, count))
     directions = torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64).expand(count, 3)
     depth = torch.from_numpy(rng.uniform(1, 6, count))
-    opacity = torch.ones(count, dtype=torch.float64)
+    return origins, directions, depth, torch.ones(count, dtype=torch.float64)
+
+
+def test_surface_data_keeps_surfaces_seen_over_a_range_and_adds_open_water():
+    count = 4000
+    origins, directions, depth, opacity = _opaque_rays(np.random.default_rng(4), count)
     opacity[:300] = 0.01                                     # open water
     rgb = torch.rand(count, 3, dtype=torch.float64)
     data = surface_data(origins, directions, rgb, depth, opacity, voxel=100.0,
@@ -535,13 +540,8 @@ def test_surfaces_pulling_the_veiling_light_off_the_open_water_widen_its_interva
 
 
 def test_open_water_below_the_horizon_is_used_only_where_none_looks_above():
-    rng = np.random.default_rng(11)
     count = 4000
-    origins = torch.zeros(count, 3, dtype=torch.float64)
-    origins[:, 0] = torch.from_numpy(rng.uniform(0, 5, count))
-    directions = torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64).expand(count, 3)
-    depth = torch.from_numpy(rng.uniform(1, 6, count))
-    opacity = torch.ones(count, dtype=torch.float64)
+    origins, directions, depth, opacity = _opaque_rays(np.random.default_rng(11), count)
     rgb = torch.full((count, 3), 0.3, dtype=torch.float64) + 0.001 * torch.rand(count, 3)
     rgb[:600] = torch.tensor([0.05, 0.2, 0.3], dtype=torch.float64)
     photo = torch.zeros(count, dtype=torch.bool)
