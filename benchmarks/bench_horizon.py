@@ -37,7 +37,7 @@ def elevations(cameras_path: Path, truth: Path | None) -> dict:
     """Per-pixel elevations (degrees) of the flagged open water, split by the true depth."""
     from seathru.geometry.upright import estimate_up
     from seathru.io.cameras import read_cameras
-    from seathru.io.images import read_image
+    from seathru.io.evaluation import read_truth_image
     from seathru.io.training import read_frame_images
     from seathru.nerf.config import TrainConfig
     from seathru.nerf.prepare import open_water_in_view
@@ -63,7 +63,7 @@ def elevations(cameras_path: Path, truth: Path | None) -> dict:
         if truth is None:
             groups["flagged"].append(angle[mask])
             continue
-        depth = read_image(truth / "depth" / f"{frame.name}.tiff")
+        depth = read_truth_image(truth, "depth", frame.name)
         depth = depth[..., 0] if depth.ndim == 3 else depth
         infinite = ~np.isfinite(depth) | (depth > 1e3)
         groups["open water"].append(angle[mask & infinite])
