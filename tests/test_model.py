@@ -348,6 +348,30 @@ def test_model_survives_a_weights_only_round_trip():
     assert loaded.water_parameters() == model.water_parameters()
 
 
+def test_the_ray_interval_scales_the_camera_bounds():
+    widened = SeaThruModel(TrainConfig.from_dict({**SMALL, "far_factor": 2.0}), scene_dict())
+    plain = SeaThruModel(TrainConfig.from_dict(SMALL), scene_dict())
+    with torch.no_grad():
+        widened.field.density.raw.add_(torch.randn_like(widened.field.density.raw).mul_(0.5))
+    plain.load_state_dict(widened.state_dict())
+    widened.eval()
+    plain.eval()
+    origins, dirs, near, far = random_rays()
+    with torch.no_grad():
+        a = widened(origins, dirs, near, far).render
+        b = plain(origins, dirs, near, 2.0 * far).render
+        c = plain(origins, dirs, near, far).render
+    assert torch.equal(a.rgb, b.rgb) and torch.equal(a.depth_median, b.depth_median)
+    assert not torch.equal(a.rgb, c.rgb)
+    near_w, far_w = widened.ray_interval(near, far)
+    assert torch.equal(near_w, near) and torch.equal(far_w, 2.0 * far)
+
+
+def test_far_factor_below_one_is_refused():
+    with pytest.raises(SettingsError, match="far_factor"):
+        TrainConfig.from_dict({"sampler": {"far_factor": 0.5}})
+
+
 def test_upsampling_the_grids_keeps_the_rendering():
     model = SeaThruModel(TrainConfig.from_dict(SMALL), scene_dict())
     with torch.no_grad():

@@ -174,11 +174,18 @@ class SeaThruModel(nn.Module):
         t_in, t_out = ray_box_intersect(origins, dirs, self.box.box_min, self.box.box_max)
         return torch.where(t_out >= torch.maximum(t_in, near), t_out, near)
 
+    def ray_interval(self, near: Tensor, far: Tensor) -> tuple[Tensor, Tensor]:
+        """Where the object field is sampled along rays with the cameras' bounds ``near``,
+        ``far`` (R,): from ``near`` to ``far`` times ``sampler.far_factor`` (the water before
+        and after is integrated in closed form either way)."""
+        return near, far * self.config.sampler.far_factor
+
     def forward(self, origins: Tensor, dirs: Tensor, near: Tensor, far: Tensor,
                 generator: torch.Generator | None = None) -> ModelOutput:
         """Render rays: origins, dirs (R, 3) (unit), near, far (R,). ``generator``: jitter the
         samples (training); None: deterministic."""
         sigma_attn, sigma_bs, c_med = self.medium(dirs)
+        near, far = self.ray_interval(near, far)
         t_split = self._split_distance(origins, dirs, near)
         if self.config.sampler.kind == "occupancy":
             return self._forward_occupancy(origins, dirs, near, far, t_split, generator,

@@ -451,7 +451,8 @@ class Trainer:
 
         open_water = float(((rendered["opacity"] < 0.1) & matches).float().mean()) \
             if visible(c_med) else 0.0
-        far = self.probe.far.to(rendered["depth_median"].device)
+        far = self.model.ray_interval(self.probe.near, self.probe.far)[1].to(
+            rendered["depth_median"].device)
         walled = (rendered["opacity"] > 0.5) & (rendered["depth_median"] > 0.95 * far)
         wall = float(walled.float().mean()) \
             if bool(walled.any()) and visible(observed[walled]) else 0.0
