@@ -114,3 +114,58 @@ def test_water_intervals_are_converted_like_the_values_and_checked_against_the_t
     assert np.allclose(result.interval95["c_med"][2], [0.58, 0.62])
     assert result.contains_truth["c_med"] == [True, True, True]
     assert result.determined == determined
+
+
+class _Camera:
+    """A pinhole looking along +z (OpenCV axes) from ``centre``."""
+
+    def __init__(self, centre, width=40, height=30, focal=30.0):
+        self.c2w_array = np.eye(4)
+        self.c2w_array[:3, 3] = centre
+        self.width, self.height, self.fx, self.fy = width, height, focal, focal
+        self.cx, self.cy = width / 2, height / 2
+
+    def range_to_plane(self, plane_z: float) -> np.ndarray:
+        """True range of every pixel to the plane z = plane_z (in front of the camera)."""
+        u, v = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
+        rays = np.stack([(u - self.cx) / self.fx, (v - self.cy) / self.fy,
+                         np.ones_like(u)], -1)
+        unit = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+        return (plane_z - self.c2w_array[2, 3]) / unit[..., 2]
+
+
+def test_training_view_coverage_counts_the_views_that_see_each_surface_point_unhidden():
+    test = _Camera((0.0, 0.0, 0.0))
+    view_range = test.range_to_plane(5.0)
+    view_range[:4, :4] = np.inf                              # open water: no surface
+    shifted = _Camera((1.5, 0.0, 0.0))                       # sees the left part of the view
+    away = _Camera((100.0, 0.0, 0.0))                        # sees none of it
+    hidden = _Camera((0.0, 0.2, 0.0))                        # a nearer surface hides the wall
+    counts = truth.training_view_coverage(
+        test, view_range, [(shifted, shifted.range_to_plane(5.0)),
+                           (away, away.range_to_plane(5.0)),
+                           (hidden, np.full((30, 40), 2.0)),
+                           (test, view_range)])
+    # the wall point of pixel column i lies at x = 5 (i + 0.5 - 20) / 30, which the shifted
+    # camera sees where 30 (x - 1.5) / 5 + 20 >= 0, i.e. for i + 0.5 >= 9
+    expected = np.ones((30, 40), dtype=int)                  # the test view itself
+    expected[:, 9:] += 1
+    expected[:4, :4] = 0
+    np.testing.assert_array_equal(counts, expected)
+
+
+def test_view_truth_metrics_scores_the_covered_pixels_apart():
+    rng = np.random.default_rng(2)
+    clean = rng.uniform(0.1, 0.9, (16, 16, 3))
+    restored = clean / GAIN
+    restored[:, :4] = 0.0                                   # never seen: restored wrong
+    covered = np.ones((16, 16), dtype=bool)
+    covered[:, :4] = False
+    truth_depth = rng.uniform(1.0, 5.0, (16, 16))
+    common = dict(full=restored, restored=restored, depth=truth_depth, clean=clean,
+                  water=clean, truth_depth=truth_depth, gain=GAIN, metres_per_unit=1.0)
+    row = truth.view_truth_metrics(**common, covered=covered)
+    assert row["restored_psnr_linear_covered"] == float("inf")
+    assert row["restored_psnr_linear"] < 20
+    assert row["covered_share"] == pytest.approx(0.75)
+    assert "restored_psnr_linear_covered" not in truth.view_truth_metrics(**common)

@@ -52,7 +52,8 @@ TABLE_COLUMNS = (
     "dataset", "source", "options", "status", "warnings", "needs_a_look", "failed_step",
     "error", "views",
     "psnr_linear", "ssim_linear", "psnr_srgb", "ssim_srgb", "lpips",
-    "restored_psnr_linear", "restored_ssim_linear", "full_vs_clean_psnr_linear",
+    "restored_psnr_linear", "restored_psnr_linear_covered", "restored_ssim_linear",
+    "full_vs_clean_psnr_linear",
     "depth_median_abs_rel", "depth_corr", *CHART_COLUMNS, "track_slope_reduction",
     "train_time_s", "train_steps",
     "capacity", "passes", "render_fps", "render_resolution", "medium")

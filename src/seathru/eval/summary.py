@@ -30,7 +30,7 @@ VIEW_COLUMNS = ("dataset", "view", *IMAGE_COLUMNS, "lpips")
 TRUTH_COLUMNS = ("restored_psnr_linear", "restored_ssim_linear", "restored_psnr_srgb",
                  "restored_ssim_srgb", "full_vs_clean_psnr_linear", "full_vs_clean_ssim_linear",
                  "full_vs_water_psnr_linear", "depth_median_abs_rel", "depth_corr",
-                 "depth_rmse_m")
+                 "depth_rmse_m", "restored_psnr_linear_covered", "covered_share")
 
 
 class ViewMetrics(TypedDict):
@@ -53,6 +53,8 @@ class ViewMetrics(TypedDict):
     depth_median_abs_rel: NotRequired[float]
     depth_corr: NotRequired[float]
     depth_rmse_m: NotRequired[float]
+    restored_psnr_linear_covered: NotRequired[float]   # on pixels 2+ training views see
+    covered_share: NotRequired[float]                   # of the pixels restored_* scores
 
 
 @dataclass(kw_only=True)

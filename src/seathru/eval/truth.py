@@ -87,9 +87,66 @@ def pooled_gain(pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
                                                               prediction_sum, 1.0), 1.0)
 
 
+def training_view_coverage(view, view_range: np.ndarray,
+                           training: Iterable[tuple[object, np.ndarray]],
+                           tolerance: float = 0.05) -> np.ndarray:
+    """How many training views see the true surface behind each pixel of a held-out view.
+
+    A training view sees a pixel's surface point when the point lies in front of it, inside its
+    image, and that view's own true range at the pixel it projects to agrees with the point's
+    range within ``tolerance`` (relative): nothing nearer hides it. Pixels no two training views
+    see cannot be reconstructed by any model; scoring the restoration on them measures what was
+    never photographed.
+
+    Args:
+        view: the held-out camera: ``c2w_array`` (4, 4), ``fx``, ``fy``, ``cx``, ``cy``,
+            ``width``, ``height`` (a ``seathru.io.cameras.Frame``), OpenCV axes.
+        view_range: ``(H, W)`` true range along each pixel's ray, in the cameras' units;
+            non-finite or <= 0 where the pixel sees no surface.
+        training: ``(camera, range)`` pairs of the training views, alike.
+        tolerance: relative range agreement for "not hidden".
+
+    Returns:
+        ``(H, W)`` int counts; 0 where the pixel sees no surface.
+
+    Example::
+
+        seen = training_view_coverage(test, test_range, zip(train, train_ranges)) >= 2
+    """
+    view_range = np.asarray(view_range, dtype=np.float64)
+    height, width = view_range.shape
+    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    rays = np.stack([(u - view.cx) / view.fx, (v - view.cy) / view.fy, np.ones_like(u)], -1)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    c2w = np.asarray(view.c2w_array, dtype=np.float64)
+    surface = np.isfinite(view_range) & (view_range > 0)
+    distance = np.where(surface, view_range, 0.0)[..., None]
+    points = (rays * distance) @ c2w[:3, :3].T + c2w[:3, 3]
+    counts = np.zeros((height, width), dtype=np.int32)
+    for camera, camera_range in training:
+        camera_range = np.asarray(camera_range, dtype=np.float64)
+        w2c = np.linalg.inv(np.asarray(camera.c2w_array, dtype=np.float64))
+        local = points @ w2c[:3, :3].T + w2c[:3, 3]
+        depth = local[..., 2]
+        in_front = depth > 1e-9
+        safe = np.where(in_front, depth, 1.0)
+        column = np.floor(camera.fx * local[..., 0] / safe + camera.cx)
+        row = np.floor(camera.fy * local[..., 1] / safe + camera.cy)
+        inside = in_front & (column >= 0) & (column < camera.width) & (row >= 0) \
+            & (row < camera.height)
+        seen_range = camera_range[np.where(inside, row, 0).astype(int),
+                                  np.where(inside, column, 0).astype(int)]
+        distance_there = np.linalg.norm(local, axis=-1)
+        with np.errstate(invalid="ignore"):
+            unhidden = np.abs(seen_range - distance_there) <= tolerance * distance_there
+        counts += surface & inside & unhidden
+    return counts
+
+
 def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndarray,
                        clean: np.ndarray, water: np.ndarray, truth_depth: np.ndarray,
-                       gain: np.ndarray, metres_per_unit: float) -> dict[str, float]:
+                       gain: np.ndarray, metres_per_unit: float,
+                       covered: np.ndarray | None = None) -> dict[str, float]:
     """The truth columns of ``metrics.csv`` for one held-out view.
 
     Args:
@@ -102,12 +159,23 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
             outputs NaN) and no depth, and are left out of the restored and depth scores.
         gain: ``(3,)`` from :func:`pooled_gain`; metres_per_unit: from
             :func:`camera_metric_scale`.
+        covered: ``(H, W)`` bool or None: the pixels whose surface two or more training views
+            see (:func:`training_view_coverage`); given, the restored view is also scored on
+            those alone (``restored_psnr_linear_covered``, ``covered_share`` of the scored
+            pixels).
     """
     defined = np.all(np.isfinite(clean), axis=-1) & np.isfinite(truth_depth)
     restored_m = metrics.image_metrics(gain * restored, clean, valid=defined)
     baseline = metrics.image_metrics(gain * full, clean, valid=defined)
     fit = metrics.image_metrics(gain * full, water)
     depth_m = metrics.depth_errors(depth * metres_per_unit, truth_depth)
+    extra = {}
+    if covered is not None:
+        seen = defined & np.asarray(covered, dtype=bool)
+        extra = {"restored_psnr_linear_covered": metrics.image_metrics(
+                     gain * restored, clean, valid=seen)["psnr_linear"] if seen.any()
+                 else float("nan"),
+                 "covered_share": float(seen.sum() / max(int(defined.sum()), 1))}
     return {
         "restored_psnr_linear": restored_m["psnr_linear"],
         "restored_ssim_linear": restored_m["ssim_linear"],
@@ -119,6 +187,7 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
         "depth_median_abs_rel": depth_m["depth_median_abs_rel"],
         "depth_corr": depth_m["depth_corr"],
         "depth_rmse_m": depth_m["depth_rmse"],
+        **extra,
     }
 
 

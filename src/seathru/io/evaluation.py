@@ -245,6 +245,32 @@ def _images_and_water_truth(cameras: CameraSet, truth_dir: Path,
         yield image, water[..., :3]
 
 
+def _training_coverage(truth_dir: Path, truth_cameras: CameraSet, cameras: CameraSet
+                       ) -> Callable[[str], np.ndarray] | None:
+    """``view -> (H, W) float32`` on the simulator's camera: 1 where two or more of the
+    evaluated camera file's training views see the pixel's true surface
+    (``seathru.eval.truth.training_view_coverage``, true cameras and ranges); None where the
+    simulation lacks a training view."""
+    frames = {f.name: f for f in truth_cameras.frames}
+    training = [f.name for f in cameras.frames if f.split != "test"]
+    if not training or any(name not in frames for name in training):
+        return None
+
+    def truth_range(name: str) -> np.ndarray:
+        depth = read_truth_image(truth_dir, "depth", name)
+        depth = depth[..., 0] if depth.ndim == 3 else depth
+        return depth.astype(np.float64) * truth_cameras.scale   # metres -> the file's units
+
+    ranges = {name: truth_range(name) for name in training}
+
+    def coverage(view: str) -> np.ndarray:
+        counts = truth_eval.training_view_coverage(
+            frames[view], truth_range(view), ((frames[n], ranges[n]) for n in training))
+        return (counts >= 2).astype(np.float32)
+
+    return coverage
+
+
 def truth_evaluation(truth_dir: Path, renders: Path, cameras: CameraSet, rows: list[dict],
                      water: WaterReport | None) -> TruthSummary:
     """Add the truth columns to ``rows`` (one per held-out view, ``view`` keyed); return the
@@ -260,7 +286,8 @@ def truth_evaluation(truth_dir: Path, renders: Path, cameras: CameraSet, rows: l
         PipelineError: the camera file and the simulation do not match (views without truth).
     """
     truth_dir, renders = Path(truth_dir), Path(renders)
-    truth_centres = camera_centres(read_cameras(truth_dir / "cameras.json"), source_units=True)
+    truth_cameras = read_cameras(truth_dir / "cameras.json")
+    truth_centres = camera_centres(truth_cameras, source_units=True)
     views = [row["view"] for row in rows]
     missing = [view for view in views if view not in truth_centres]
     if missing:
@@ -274,14 +301,18 @@ def truth_evaluation(truth_dir: Path, renders: Path, cameras: CameraSet, rows: l
         return resized_like(on_frame(read_truth_image(truth_dir, kind, view), view), like)
 
     gain = truth_eval.pooled_gain(_images_and_water_truth(cameras, truth_dir, on_frame))
+    coverage = _training_coverage(truth_dir, truth_cameras, cameras)
     for row in rows:
         view = row["view"]
         full = read_render(renders, view, "full")
+        covered = None
+        if coverage is not None:
+            covered = resized_like(on_frame(coverage(view), view), full) > 0.5
         row.update(truth_eval.view_truth_metrics(
             full=full, restored=read_render(renders, view, "restored"),
             depth=read_render(renders, view, "depth"), clean=truth("clean", view, full),
             water=truth("water", view, full), truth_depth=truth("depth", view, full),
-            gain=gain, metres_per_unit=scale.scale))
+            gain=gain, metres_per_unit=scale.scale, covered=covered))
     fitted = None if water is None else water.normalised.as_dict()
     uncertainty = None if water is None else water.uncertainty
     comparison = truth_eval.compare_water(
