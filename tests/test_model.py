@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 
 from seathru.nerf.fields import contract, grid_vertices, trilinear_lookup, uncontract
 from seathru.nerf.inference import render_frame
-from seathru.nerf.losses import (distortion_loss, reconstruction_loss, total_variation_3d,
-                                 transmittance_prior)
+from seathru.nerf.losses import (distortion_loss, reconstruction_loss, sparse_depth_loss,
+                                 total_variation_3d, transmittance_prior)
 from seathru.nerf.medium import Medium
 from seathru.nerf.config import TrainConfig
 from seathru.settings import SettingsError
@@ -267,6 +267,20 @@ def test_reconstruction_loss_matches_a_float64_reference_and_its_gradient():
     masked = reconstruction_loss(pred.detach(), target, 1e-3, mask)
     assert float(masked) == pytest.approx(float(reconstruction_loss(pred.detach()[mask],
                                                                     target[mask], 1e-3)))
+
+
+def test_sparse_depth_loss_is_the_mean_relative_l1_error_and_pulls_depth_to_the_target():
+    gen = torch.Generator().manual_seed(3)
+    target = torch.rand(50, generator=gen, dtype=torch.float64) * 4 + 0.5
+    depth = (target * (1 + 0.3 * torch.randn(50, generator=gen, dtype=torch.float64))
+             ).requires_grad_(True)
+    loss = sparse_depth_loss(depth, target)
+    reference = sum(abs(d - t) / t for d, t in zip(depth.tolist(), target.tolist())) / 50
+    assert float(loss) == pytest.approx(reference, rel=1e-12)
+    loss.backward()
+    # descent moves every depth towards its target, the nearer points the more
+    assert torch.all(torch.sign(depth.grad) == torch.sign(depth.detach() - target))
+    torch.testing.assert_close(depth.grad.abs(), 1 / (50 * target))
 
 
 @settings(max_examples=30, deadline=None)

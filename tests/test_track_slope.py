@@ -271,3 +271,27 @@ def test_track_colour_slope_splits_the_tracks_into_near_and_far(tmp_path, monkey
     assert result["near_tracks"]["input"]["observations"] == (~far).sum()
     assert result["far_tracks"]["input"]["observations"] == far.sum()
     assert result["all_views"]["input"]["observations"] == far.size
+
+
+def test_depth_observations_keep_training_views_and_their_rays_end_at_the_points(
+        tmp_path, monkeypatch):
+    from seathru.nerf.rays import depth_rays
+
+    cameras, points = _scene(tmp_path)
+    _every_point_in_every_view(points, monkeypatch)
+    (tmp_path / "sparse").mkdir()
+    # two training views (v1 is held out): no point has three training views
+    assert tracks_io.training_depth_observations(cameras) is None
+    obs = tracks_io.training_depth_observations(cameras, min_views=2)
+    assert set(np.unique(obs.frames)) == {0, 2} and not obs.held_out.any()
+    rays = depth_rays(cameras.frames, obs.frames, obs.points, obs.observed)
+    assert len(rays) == len(obs.frames)
+    ends = rays.rays.origins + rays.rays.directions * rays.ranges[:, None]
+    normalised = (points[obs.track_ids] - np.asarray(cameras.centre)) * cameras.scale
+    np.testing.assert_allclose(ends.numpy(), normalised, atol=1e-5)
+    np.testing.assert_allclose(rays.ranges.numpy(), obs.ranges * cameras.scale, rtol=1e-5)
+    np.testing.assert_allclose(rays.rays.rgb.numpy(), obs.observed)
+    # points beyond a frame's far bound are left out
+    cameras.frames[0].far = 0.2
+    fewer = depth_rays(cameras.frames, obs.frames, obs.points, obs.observed)
+    assert len(fewer) == int((obs.frames == 2).sum())

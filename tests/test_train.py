@@ -434,3 +434,73 @@ def test_below_horizon_marks_rays_looking_down_by_more_than_the_margin():
     assert below.tolist() == [True, True, False, False, False]
     assert below_horizon(directions, None, 5.0) is None        # models saved without it
     assert below_horizon(directions, [0.0, 0.0, 1.0], -1.0) is None
+
+
+def _true_depth_rays(scene_dir: Path, count: int = 2000, seed: int = 0):
+    """Rays of the training views through random pixels with a surface, with the true range
+    (the simulator's depth, metres; its camera file is in metres too)."""
+    from seathru.io.evaluation import read_truth_image
+    from seathru.nerf.rays import DepthRays, RayBatch, frame_rays
+
+    cameras = read_cameras(scene_dir / "cameras.json")
+    rng = np.random.default_rng(seed)
+    parts = []
+    for frame in cameras.split("train"):
+        origins, dirs = frame_rays(frame)
+        depth = read_truth_image(scene_dir.parent / "truth", "depth", frame.name)
+        depth = (depth[..., 0] if depth.ndim == 3 else depth).reshape(-1)
+        rgb = read_image(cameras.image_path(frame)).reshape(-1, 3)
+        pick = rng.choice(np.flatnonzero(np.isfinite(depth) & (depth > 0)), count // 12)
+        parts.append((origins[pick], dirs[pick], frame.near, frame.far, rgb[pick],
+                      depth[pick] * cameras.scale))
+    cat = lambda i: torch.cat([torch.as_tensor(np.asarray(p[i]), dtype=torch.float32)  # noqa: E731
+                               for p in parts])
+    near = torch.cat([torch.full((len(p[0]),), float(p[2])) for p in parts])
+    far = torch.cat([torch.full((len(p[0]),), float(p[3])) for p in parts])
+    rays = RayBatch(cat(0), cat(1), near, far, cat(4))
+    return DepthRays(rays, cat(5))
+
+
+def test_the_sparse_depth_term_is_its_weight_times_the_relative_depth_error(default_scene):
+    import dataclasses
+
+    from seathru.nerf.losses import sparse_depth_loss
+
+    trainer = _small_trainer(default_scene)
+    depth = _true_depth_rays(default_scene).sample(64, torch.Generator().manual_seed(2))
+    batch = trainer.data.sample(128, torch.Generator().manual_seed(3))
+
+    def loss(weight: float) -> float:
+        trainer.config = dataclasses.replace(trainer.config, loss=dataclasses.replace(
+            trainer.config.loss, sparse_depth_weight=weight))
+        trainer.generator.manual_seed(7)
+        return float(trainer._loss(batch, depth)[0])
+
+    with torch.no_grad():
+        rays = torch.cat([batch.origins, depth[0].origins]), torch.cat(
+            [batch.directions, depth[0].directions]), torch.cat([batch.near, depth[0].near]), \
+            torch.cat([batch.far, depth[0].far])
+        trainer.model.train()
+        rendered = trainer.model(*rays, generator=torch.Generator().manual_seed(7)).render
+        expected = 0.3 * float(sparse_depth_loss(rendered.depth_mean[128:], depth[1]))
+        assert loss(0.3) - loss(0.0) == pytest.approx(expected, rel=1e-4)
+        assert loss(0.0) == pytest.approx(float(trainer._loss(batch)[0]), rel=0.05)
+
+
+def test_sparse_depth_pulls_the_rendered_depth_onto_the_points(default_scene):
+    depth = _true_depth_rays(default_scene)
+
+    def depth_error(weight: float) -> float:
+        torch.manual_seed(0)
+        trainer = _small_trainer(default_scene, steps=150,
+                                 loss={"sparse_depth_weight": weight, "sparse_depth_rays": 128})
+        trainer.data.depth_rays = depth
+        trainer.run()
+        trainer.model.eval()
+        with torch.no_grad():
+            rendered = trainer.model(depth.rays.origins, depth.rays.directions,
+                                     depth.rays.near, depth.rays.far).render
+        return float(((rendered.depth_mean - depth.ranges).abs() / depth.ranges).median())
+
+    without, supervised = depth_error(0.0), depth_error(0.5)
+    assert supervised < 0.7 * without, (supervised, without)

@@ -41,6 +41,7 @@ class TrackObservations:
     ranges: np.ndarray      # (N,) camera centre to point, source units
     observed: np.ndarray    # (N, 3) input linear colour at the pixel
     held_out: np.ndarray    # (N,) bool: the frame's split is 'test'
+    points: np.ndarray | None = None   # (N, 3) the 3D point, the camera file's normalised units
 
 
 def track_observations(cameras: CameraSet, model_dir: Path, max_points: int = 20000,
@@ -107,7 +108,8 @@ def track_observations(cameras: CameraSet, model_dir: Path, max_points: int = 20
     held_out = np.array([f.split == "test" for f in cameras.frames])[frame_index]
     return TrackObservations(point_ids[found], frame_index[found],
                              [f.name for f in cameras.frames], rows[found], cols[found],
-                             ranges[found], observed[found], held_out[found])
+                             ranges[found], observed[found], held_out[found],
+                             normalised[found])
 
 
 def observation_rays(cameras: CameraSet, obs: TrackObservations):
@@ -262,3 +264,23 @@ def input_colour_change(cameras: CameraSet, max_points: int = 5000) -> dict | No
     return {"tracks": int(fit.tracks), "observations": int(fit.observations),
             "median_range": median, "slope": fit.slope.tolist(), "stderr": fit.stderr.tolist(),
             "t": t.tolist(), "change_over_median_range": (fit.slope * median).tolist()}
+
+
+def training_depth_observations(cameras: CameraSet, max_points: int = 20000,
+                                min_views: int = 3) -> TrackObservations | None:
+    """The observations of COLMAP points in the training views, for depth supervision
+    (``train.loss.sparse_depth_weight``): points seen by at least ``min_views`` training views
+    (a longer track is triangulated more reliably); None without a COLMAP model beside the
+    camera file or without such points."""
+    model_dir = (cameras.root or Path(".")) / SPARSE_DIR
+    if not model_dir.is_dir():
+        return None
+    obs = track_observations(cameras, model_dir, max_points=max_points)
+    train = ~obs.held_out
+    ids, counts = np.unique(obs.track_ids[train], return_counts=True)
+    keep = train & np.isin(obs.track_ids, ids[counts >= min_views])
+    if not keep.any():
+        return None
+    return TrackObservations(obs.track_ids[keep], obs.frames[keep], obs.names, obs.rows[keep],
+                             obs.cols[keep], obs.ranges[keep], obs.observed[keep],
+                             obs.held_out[keep], obs.points[keep])

@@ -225,6 +225,11 @@ class LossConfig:
                    "is more than medium.auto_open_water_share of the training pixels: open "
                    "water is the water's own colour, not a surface; 0 = off")
     distortion_weight: float = setting(0.01, help="weight of the distortion loss")
+    sparse_depth_weight: float = setting(
+        0.1, help="weight of the depth loss on rays towards COLMAP's sparse points (points seen "
+                  "by 3+ training views): the relative error of the rendered expected depth, "
+                  "which also clears fog in front of them (docs/water.md); 0 = off")
+    sparse_depth_rays: int = setting(256, help="sparse-depth rays added to each step's batch")
     density_tv_weight: float = setting(0.0, help="weight of total variation on the density grid")
     recon_eps: float = setting(1e-3, help="eps of the relative reconstruction loss")
 
@@ -392,7 +397,7 @@ TRAIN_PRESETS: dict[str, dict] = {
         "medium": {"mode": "view", "render_method": "paper", "water_before": False,
                    "water_after": False},
         "loss": {"transmittance_prior_weight": 1e-4, "distortion_weight": 0.0,
-                 "open_water_weight": 0.0},
+                 "open_water_weight": 0.0, "sparse_depth_weight": 0.0},
         "optim": {"lr": 5e-4, "network_lr_scale": 1.0, "medium_lr_scale": 1.0},
         "batch_rays": 1024,
     },

@@ -88,3 +88,23 @@ def distortion_loss(weights: Tensor, s_edges: Tensor) -> Tensor:
     inter = 2.0 * (weights * (mids * w_before - wm_before)).sum(dim=-1)
     intra = (weights.square() * lengths).sum(dim=-1) / 3.0
     return (inter + intra).mean()
+
+
+def sparse_depth_loss(depth: Tensor, target: Tensor) -> Tensor:
+    """Mean relative L1 error of rendered depths against the ranges of sparse 3D points.
+
+    Relative, because a triangulated point's error grows with its range; L1, because a few
+    points are mistriangulated. The expected depth (not the median) takes every sample's
+    weight, so fog in front of a point is pulled onto it.
+
+    Args:
+        depth: (R,) rendered expected ray distance; target: (R,) the points' ranges (> 0).
+
+    Returns:
+        the scalar loss.
+
+    Example::
+
+        loss = sparse_depth_loss(render.depth_mean, ranges)
+    """
+    return ((depth - target).abs() / target).mean()

@@ -13,7 +13,7 @@ from seathru.errors import PipelineError
 from seathru.nerf.capacity import choose_capacity, measure_scene, steps_for_passes
 from seathru.nerf.config import TrainConfig, resolve_batch_rays
 from seathru.nerf.model import SeaThruModel, scene_from_frames
-from seathru.nerf.rays import RayBatch, RayDataset, frame_rays
+from seathru.nerf.rays import RayBatch, RayDataset, depth_rays, frame_rays
 from seathru.radiometry.linearise import block_average
 from seathru.radiometry.open_water import open_water_mask
 
@@ -31,7 +31,7 @@ class PreparedRun:
 
 def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_frames=(),
                 test_images=(), test_masks=(), device: torch.device | str = "cpu",
-                track_change: dict | None = None) -> PreparedRun:
+                track_change: dict | None = None, sparse_points=None) -> PreparedRun:
     """The model and data of a training run.
 
     Args:
@@ -44,6 +44,10 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
         track_change: how the input colour changes with range along COLMAP tracks
             (``seathru.io.tracks.input_colour_change``), kept in the scene as evidence of
             water for the medium decision; None when there are no tracks.
+        sparse_points: observations of sparse 3D points in the training views (``frames``
+            (N,) indices into ``cameras.frames``, ``points`` (N, 3) normalised, ``observed``
+            (N, 3) colours: ``seathru.io.tracks.training_depth_observations``) for the
+            sparse-depth loss, or None.
 
     Returns:
         the resolved config (``passes`` turned into ``steps``; ``preset=auto`` into a capacity
@@ -62,6 +66,11 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
                       open_water=water_masks if in_view else None)
     if len(data) == 0:
         raise PipelineError("the training images have no valid pixel (check the masks)")
+    if sparse_points is not None and config.loss.sparse_depth_weight > 0:
+        data.depth_rays = depth_rays(cameras.frames, sparse_points.frames, sparse_points.points,
+                                     sparse_points.observed, device)
+        log.info("sparse depth: %d rays towards COLMAP points",
+                 0 if data.depth_rays is None else len(data.depth_rays))
     if data.dropped_nonfinite:
         log.warning("%d training pixels are NaN/Inf and are left out", data.dropped_nonfinite)
     test = None

@@ -156,6 +156,56 @@ class RayBatch:
                         None if self.open_water is None else self.open_water[index])
 
 
+@dataclass
+class DepthRays:
+    """Rays of the training views towards sparse 3D points (COLMAP's), with the range at which
+    each meets its point: depth supervision (``loss.sparse_depth_weight``)."""
+
+    rays: RayBatch   # rgb: the input colour of the point's pixel
+    ranges: Tensor   # (R,) normalised units
+
+    def __len__(self) -> int:
+        return len(self.ranges)
+
+    def sample(self, count: int, generator: torch.Generator) -> tuple[RayBatch, Tensor]:
+        """``count`` rays and their ranges, drawn uniformly with replacement."""
+        index = torch.randint(0, len(self), (count,), generator=generator).to(
+            self.ranges.device)
+        return self.rays.subset(index), self.ranges[index]
+
+
+def depth_rays(frames, frame_index: np.ndarray, points: np.ndarray, colours: np.ndarray,
+               device="cpu") -> DepthRays | None:
+    """The rays from each frame's centre through its sparse points.
+
+    Args:
+        frames: ``seathru.io.cameras.Frame`` objects (normalised units).
+        frame_index: (N,) index into ``frames`` of each observation.
+        points: (N, 3) the observed 3D points, normalised units.
+        colours: (N, 3) the input colour at each observation's pixel.
+
+    Returns:
+        the rays whose point lies within the frame's near..far, or None if none does.
+
+    Example::
+
+        rays = depth_rays(cameras.frames, obs.frames, obs.points, obs.observed)
+    """
+    centres = np.array([f.c2w_array[:3, 3] for f in frames], dtype=np.float64)[frame_index]
+    offset = np.asarray(points, dtype=np.float64) - centres
+    ranges = np.linalg.norm(offset, axis=-1)
+    near = np.array([f.near for f in frames], dtype=np.float64)[frame_index]
+    far = np.array([f.far for f in frames], dtype=np.float64)[frame_index]
+    keep = (ranges > near) & (ranges < far) & np.isfinite(np.asarray(colours)).all(-1)
+    if not keep.any():
+        return None
+    as_tensor = lambda a: torch.from_numpy(np.ascontiguousarray(a[keep], dtype=np.float32))  # noqa: E731
+    rays = RayBatch(as_tensor(centres), as_tensor(offset / ranges[:, None]), as_tensor(near),
+                    as_tensor(far), as_tensor(np.asarray(colours)),
+                    torch.zeros(int(keep.sum()), dtype=torch.bool))
+    return DepthRays(rays.to(device), as_tensor(ranges).to(device))
+
+
 class RayDataset:
     """All valid pixels of a set of frames as one tensor of rays (fits in memory at these sizes).
 
@@ -169,6 +219,7 @@ class RayDataset:
         masks = masks if masks is not None else [None] * len(frames)
         water_masks = open_water if open_water is not None else [None] * len(frames)
         self.dropped_nonfinite = 0
+        self.depth_rays: DepthRays | None = None   # set by seathru.nerf.prepare
         for frame, image, mask, water_mask in zip(frames, images, masks, water_masks):
             image = np.asarray(image, dtype=np.float32)
             if image.shape[:2] != (frame.height, frame.width):

@@ -36,7 +36,7 @@ import torch
 from seathru.errors import PipelineError
 from seathru.nerf.config import TrainConfig, resolve_batch_rays
 from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruction_loss,
-                                 total_variation_3d, transmittance_prior)
+                                 sparse_depth_loss, total_variation_3d, transmittance_prior)
 from seathru.nerf.model import SeaThruModel
 from seathru.nerf.rays import RayBatch, RayDataset
 from seathru.nerf.medium import DIRECTIONAL_MODES
@@ -672,15 +672,23 @@ class Trainer:
         if self.callbacks.message:
             self.callbacks.message(text)
 
-    def _loss(self, batch: RayBatch) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    def _loss(self, batch: RayBatch, depth: tuple[RayBatch, torch.Tensor] | None = None
+              ) -> tuple[torch.Tensor, torch.Tensor, dict]:
+        """The step's loss on ``batch``; ``depth``: sparse-depth rays and their ranges, rendered
+        in the same pass (the colour losses see ``batch`` alone)."""
         c = self.config
-        out = self.model(batch.origins, batch.directions, batch.near, batch.far,
+        rays = batch if depth is None else _concatenated(batch, depth[0])
+        out = self.model(rays.origins, rays.directions, rays.near, rays.far,
                          generator=self.generator)
-        render = out.render
-        recon = reconstruction_loss(render.rgb, batch.rgb, c.loss.recon_eps)
+        render, count = out.render, len(batch)
+        recon = reconstruction_loss(render.rgb[:count], batch.rgb, c.loss.recon_eps)
         loss = recon
         if out.coarse is not None:
-            loss = loss + reconstruction_loss(out.coarse.rgb, batch.rgb, c.loss.recon_eps)
+            loss = loss + reconstruction_loss(out.coarse.rgb[:count], batch.rgb,
+                                              c.loss.recon_eps)
+        if depth is not None:
+            loss = loss + c.loss.sparse_depth_weight * sparse_depth_loss(
+                render.depth_mean[count:], depth[1])
         ramp = min(1.0, max(0.0, (self._progress() - c.loss.transmittance_prior_start) / 0.1)) \
             if c.loss.transmittance_prior_start > 0 else 1.0
         if c.loss.transmittance_prior_weight > 0 and ramp > 0:
@@ -692,14 +700,14 @@ class Trainer:
         # correlation); real open water is filled with floaters without it (d3_reef).
         if c.loss.open_water_weight > 0 and batch.open_water is not None \
                 and self.model.medium.mode in DIRECTIONAL_MODES and bool(batch.open_water.any()):
-            opacity = 1.0 - render.transmittance[:, -1]
+            opacity = 1.0 - render.transmittance[:count, -1]
             loss = loss + c.loss.open_water_weight * opacity[batch.open_water].mean()
         if c.loss.distortion_weight > 0 and out.s_edges is not None:
             loss = loss + c.loss.distortion_weight * distortion_loss(render.weights, out.s_edges)
         if c.loss.density_tv_weight > 0 and c.field.kind == "grid":
             loss = loss + c.loss.density_tv_weight * total_variation_3d(
                 self.model.field.density.raw, 8192, self.generator)
-        return loss, mse(render.rgb.detach(), batch.rgb), {}
+        return loss, mse(render.rgb[:count].detach(), batch.rgb), {}
 
     def run(self) -> TrainResult:
         c = self.config
@@ -832,7 +840,11 @@ class Trainer:
         batch = self.data.sample(self.config.batch_rays, self.generator)
         if self.callbacks.batch_hook is not None:
             batch = self.callbacks.batch_hook(self.step, batch)
-        loss, batch_mse, _ = self._loss(batch)
+        depth = None
+        if self.config.loss.sparse_depth_weight > 0 and self.data.depth_rays is not None:
+            depth = self.data.depth_rays.sample(self.config.loss.sparse_depth_rays,
+                                                self.generator)
+        loss, batch_mse, _ = self._loss(batch, depth)
         if not bool(torch.isfinite(loss)):
             self._rollback("non-finite loss")
             return None
@@ -902,6 +914,16 @@ class ThreadTuner:
             self.current = best
             torch.set_num_threads(best)
             self.times = {}
+
+
+def _concatenated(a: RayBatch, b: RayBatch) -> RayBatch:
+    """The rays of ``a`` then ``b`` in one batch (open-water flags where ``a`` has them)."""
+    water = None
+    if a.open_water is not None:
+        water = torch.cat([a.open_water, b.open_water if b.open_water is not None
+                           else torch.zeros(len(b), dtype=torch.bool, device=a.rgb.device)])
+    return RayBatch(*(torch.cat([getattr(a, k), getattr(b, k)]) for k in
+                      ("origins", "directions", "near", "far", "rgb")), water)
 
 
 def below_horizon(directions: torch.Tensor, up, margin_deg: float) -> torch.Tensor | None:

@@ -58,7 +58,7 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     import torch
 
     from seathru.io.model import save_model
-    from seathru.io.tracks import input_colour_change
+    from seathru.io.tracks import input_colour_change, training_depth_observations
     from seathru.io.training import (CHECKPOINT_NAME, load_checkpoint, read_frame_images,
                                      read_snapshots, save_checkpoint, write_log_csv,
                                      write_snapshots)
@@ -85,7 +85,9 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
         prepared = prepare_run(config, cameras, train_frames,
                                *read_frame_images(cameras, train_frames), test_frames,
                                test_images, test_masks, device=device,
-                               track_change=input_colour_change(cameras))
+                               track_change=input_colour_change(cameras),
+                               sparse_points=training_depth_observations(cameras)
+                               if config.loss.sparse_depth_weight > 0 else None)
     except PipelineError as exc:
         raise PipelineError(f"{cameras_path}: {exc}") from None
     model, data = prepared.model, prepared.data
