@@ -24,6 +24,7 @@ from collections.abc import Iterable, Mapping, Sequence
 import numpy as np
 
 from seathru.eval import metrics
+from seathru.geometry.poses import pixel_of_points
 from seathru.eval.summary import MetricScale, TruthSummary, WaterComparison
 
 SIGMA_KEYS = ("sigma_attn", "sigma_bs")
@@ -124,18 +125,10 @@ def training_view_coverage(view, view_range: np.ndarray,
     points = (rays * distance) @ c2w[:3, :3].T + c2w[:3, 3]
     counts = np.zeros((height, width), dtype=np.int32)
     for camera, camera_range in training:
-        camera_range = np.asarray(camera_range, dtype=np.float64)
-        w2c = np.linalg.inv(np.asarray(camera.c2w_array, dtype=np.float64))
-        local = points @ w2c[:3, :3].T + w2c[:3, 3]
-        depth = local[..., 2]
-        in_front = depth > 1e-9
-        safe = np.where(in_front, depth, 1.0)
-        column = np.floor(camera.fx * local[..., 0] / safe + camera.cx)
-        row = np.floor(camera.fy * local[..., 1] / safe + camera.cy)
-        inside = in_front & (column >= 0) & (column < camera.width) & (row >= 0) \
-            & (row < camera.height)
-        seen_range = camera_range[np.where(inside, row, 0).astype(int),
-                                  np.where(inside, column, 0).astype(int)]
+        row, column, local, inside = pixel_of_points(
+            camera.c2w_array, camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
+            camera.height, points)
+        seen_range = np.asarray(camera_range, dtype=np.float64)[row, column]
         distance_there = np.linalg.norm(local, axis=-1)
         with np.errstate(invalid="ignore"):
             unhidden = np.abs(seen_range - distance_there) <= tolerance * distance_there

@@ -197,6 +197,33 @@ def point_depths(c2w: np.ndarray, points: np.ndarray) -> np.ndarray:
     return (np.asarray(points, np.float64) - c2w[:3, 3]) @ c2w[:3, 2]
 
 
+def pixel_of_points(c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float, width: int,
+                    height: int, points: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where world points ``(..., 3)`` fall in a pinhole camera (OpenCV axes, c2w ``(4, 4)``).
+
+    Returns:
+        ``(row, column, camera_points, inside)``: the integer pixel each point falls in (the
+        centre of pixel (u, v) is at (u + 0.5, v + 0.5)), 0 where it falls outside; the points
+        in camera coordinates ``(..., 3)``; and whether the point is in front of the camera and
+        inside the image.
+
+    Example::
+
+        row, column, local, inside = pixel_of_points(c2w, 500, 500, 320, 240, 640, 480, points)
+    """
+    c2w = np.asarray(c2w, np.float64)
+    local = (np.asarray(points, np.float64) - c2w[:3, 3]) @ c2w[:3, :3]   # R^T (p - t)
+    depth = local[..., 2]
+    in_front = depth > 1e-9
+    safe = np.where(in_front, depth, 1.0)
+    column = np.floor(fx * local[..., 0] / safe + cx)
+    row = np.floor(fy * local[..., 1] / safe + cy)
+    inside = in_front & (column >= 0) & (column < width) & (row >= 0) & (row < height)
+    return (np.where(inside, row, 0).astype(np.int64), np.where(inside, column, 0).astype(np.int64),
+            local, inside)
+
+
 def frustum_corners(c2w: np.ndarray, intrinsics: np.ndarray, width: int, height: int,
                     depth: float) -> np.ndarray:
     """World positions ``(4, 3)`` of the image corners at camera depth ``depth``."""

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from seathru.errors import PipelineError
+from seathru.geometry.poses import pixel_of_points
 from seathru.io.cameras import CameraSet
 from seathru.io.colmap import read_model
 from seathru.io.images import read_image, read_mask
@@ -82,16 +83,9 @@ def track_observations(cameras: CameraSet, model_dir: Path, max_points: int = 20
         here = np.flatnonzero(frame_index == index)
         if here.size == 0:
             continue
-        c2w = frame.c2w_array
-        offset = normalised[here] - c2w[:3, 3]
-        camera = offset @ c2w[:3, :3]              # R^T (p - t), OpenCV axes
-        depth = camera[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = frame.fx * camera[:, 0] / depth + frame.cx
-            v = frame.fy * camera[:, 1] / depth + frame.cy
-        col, row = np.floor(u), np.floor(v)
-        inside = (depth > 0) & (col >= 0) & (col < frame.width) & (row >= 0) & \
-            (row < frame.height)
+        row, col, camera, inside = pixel_of_points(frame.c2w_array, frame.fx, frame.fy,
+                                                   frame.cx, frame.cy, frame.width,
+                                                   frame.height, normalised[here])
         image = read_image(cameras.image_path(frame))[..., :3]
         mask_path = cameras.mask_path(frame)
         mask = read_mask(mask_path) if mask_path is not None and mask_path.is_file() else None
@@ -102,7 +96,7 @@ def track_observations(cameras: CameraSet, model_dir: Path, max_points: int = 20
             valid &= (mask[..., 0] if mask.ndim == 3 else mask)[r, c] > 0
         good, r, c = good[valid], r[valid], c[valid]
         rows[good], cols[good] = r, c
-        ranges[good] = np.linalg.norm(offset[inside][valid], axis=1) / cameras.scale
+        ranges[good] = np.linalg.norm(camera[inside][valid], axis=1) / cameras.scale
         observed[good] = image[r, c]
     found = rows >= 0
     held_out = np.array([f.split == "test" for f in cameras.frames])[frame_index]
