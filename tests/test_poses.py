@@ -653,3 +653,27 @@ def test_colmap_recovers_a_transect_in_turbid_water(tmp_path):
     run_poses("--ingest", str(ingest_like(simulated, tmp_path / "ingest")), "--out", str(out),
               "--threads", THREADS)
     assert_poses_match_truth(out, simulated / "truth" / "cameras.json")
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-3, 3), st.floats(-1.4, 1.4), st.floats(-3, 3), st.integers(0, 31),
+       st.integers(0, 23), st.floats(0.2, 20.0), st.floats(0.05, 0.95), st.floats(0.05, 0.95))
+def test_pixel_of_points_finds_the_pixel_whose_ray_passes_through_the_point(
+        a, b, c, column, row, distance, du, dv):
+    from scipy.spatial.transform import Rotation
+
+    from seathru.geometry.poses import pixel_of_points
+
+    c2w = np.eye(4)
+    c2w[:3, :3] = Rotation.from_euler("zyx", [a, b, c]).as_matrix()
+    c2w[:3, 3] = [0.3, -1.2, 2.0]
+    fx, fy, cx, cy, width, height = 28.0, 30.0, 15.7, 12.2, 32, 24
+    # a point on the ray through (column + du, row + dv): inside pixel (column, row)
+    direction = np.array([(column + du - cx) / fx, (row + dv - cy) / fy, 1.0])
+    point = c2w[:3, :3] @ (direction / np.linalg.norm(direction) * distance) + c2w[:3, 3]
+    behind = c2w[:3, 3] - (point - c2w[:3, 3])
+    rows, columns, local, inside = pixel_of_points(c2w, fx, fy, cx, cy, width, height,
+                                                   np.stack([point, behind]))
+    assert (rows[0], columns[0], bool(inside[0])) == (row, column, True)
+    assert np.linalg.norm(local[0]) == pytest.approx(distance, rel=1e-9)
+    assert not inside[1] and (rows[1], columns[1]) == (0, 0)
