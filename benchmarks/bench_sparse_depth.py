@@ -26,7 +26,7 @@ sys.path.insert(0, str(REPO / "src"))
 OUT = REPO / "benchmarks" / "results" / "sparse_depth.md"
 
 
-def trainer_for(weight: float, cameras, threads: int):
+def trainer_for(weight: float, cameras):
     """A trainer of the default model on ``cameras`` with the given sparse-depth weight."""
     from seathru.io.tracks import training_depth_observations
     from seathru.io.training import read_frame_images
@@ -60,8 +60,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     cameras = read_cameras(args.poses / "cameras.json")
     default = TrainConfig().loss.sparse_depth_weight
-    trainers = {"without": trainer_for(0.0, cameras, args.threads),
-                "with": trainer_for(default, cameras, args.threads)}
+    trainers = {"without": trainer_for(0.0, cameras), "with": trainer_for(default, cameras)}
     rays = trainers["with"].data.depth_rays
     for trainer in trainers.values():        # warm-up: allocations, caches
         for _ in range(5):

@@ -201,8 +201,7 @@ def depth_rays(frames, frame_index: np.ndarray, points: np.ndarray, colours: np.
         return None
     as_tensor = lambda a: torch.from_numpy(np.ascontiguousarray(a[keep], dtype=np.float32))  # noqa: E731
     rays = RayBatch(as_tensor(centres), as_tensor(offset / ranges[:, None]), as_tensor(near),
-                    as_tensor(far), as_tensor(np.asarray(colours)),
-                    torch.zeros(int(keep.sum()), dtype=torch.bool))
+                    as_tensor(far), as_tensor(np.asarray(colours)))
     return DepthRays(rays.to(device), as_tensor(ranges).to(device))
 
 
