@@ -4,6 +4,7 @@ project's own readers (``seathru.io.dataset_readers``) and compared with the cam
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pycolmap
@@ -11,7 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from seathru.cli import main
-from seathru.geometry.poses import denormalise_c2w
+from seathru.geometry.poses import denormalise_c2w, pixel_of_points
 from seathru.io.cameras import CameraSet, Frame, read_cameras, write_cameras
 from seathru.io.colmap import read_model
 from seathru.io.dataset_readers import read_colmap_model, read_nerfstudio
@@ -156,3 +157,36 @@ def test_export_without_sparse_points_writes_an_empty_points_file(tmp_path, expo
 def test_export_names_a_missing_camera_file(tmp_path, capsys):
     assert main(["export", "--poses", str(tmp_path), "--out", str(tmp_path / "e")]) == 2
     assert "cameras.json" in capsys.readouterr().err
+
+
+def test_points_with_tracks_are_observed_where_colmap_projects_them(tmp_path):
+    cameras = _cameras(views=4, seed=3)
+    rng = np.random.default_rng(4)
+    # points in front of the first camera, 1-3 units away (source units)
+    first = denormalise_c2w(cameras.frames[0].c2w_array, CENTRE, SCALE)
+    local = np.column_stack([rng.uniform(-0.3, 0.3, (60, 2)), np.ones(60)]) \
+        * rng.uniform(4, 12, (60, 1))
+    points = local @ first[:3, :3].T + first[:3, 3]
+    normalised = (points - CENTRE) * SCALE
+    seen = np.stack([pixel_of_points(f.c2w_array, f.fx, f.fy, f.cx, f.cy, f.width, f.height,
+                                     normalised)[3] for f in cameras.frames], axis=1)
+    seen[:, 0] = True
+    names = {f.name: f"{f.name}.png" for f in cameras.frames}
+    colmap_reconstruction(cameras, names, points, seen=seen).write(tmp_path)
+    model = read_model(tmp_path)
+    by_name = {Path(image.name).stem: image for image in model.images.values()}
+    column_of = {f.name: v for v, f in enumerate(cameras.frames)}
+    assert model.num_points3D() == len(points)
+    for point in model.points3D.values():
+        index = int(np.argmin(np.linalg.norm(points - point.xyz, axis=1)))
+        np.testing.assert_allclose(point.xyz, points[index], atol=1e-9)
+        observed = set()
+        for element in point.track.elements:
+            image = model.image(element.image_id)
+            observed.add(column_of[Path(image.name).stem])
+            xy = image.points2D[element.point2D_idx].xy
+            np.testing.assert_allclose(xy, image.project_point(point.xyz), atol=1e-6)
+        assert observed == set(np.flatnonzero(seen[index]))
+    assert sum(by_name[f.name].num_points3D for f in cameras.frames) == seen.sum()
+    with pytest.raises(ValueError, match="seen"):
+        colmap_reconstruction(cameras, names, points, seen=seen[:, :2])

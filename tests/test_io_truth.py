@@ -165,3 +165,32 @@ def test_truth_scores_leave_open_water_out(survey_written):
     for key in ("restored_psnr_linear", "restored_ssim_linear", "restored_psnr_srgb"):
         assert dark[key] == pytest.approx(bright[key]), key
     assert dark["depth_median_abs_rel"] == pytest.approx(0.02, rel=1e-3)
+
+
+def test_truth_sparse_model_is_read_as_colmap_points_on_the_true_surfaces(tmp_path):
+    from seathru.io.tracks import track_observations
+
+    spec = dive.DiveSpec(views=6, width=32, height=24, path="survey",
+                         water=water_params("default"), seed=1, fov_deg=60.0,
+                         supersample=1, seabed_amplitude=0.3)
+    root = tmp_path / "dive"
+    plan = dive.plan_dive(spec, {})
+    frames = []
+    for name, view in zip(truth.view_names(spec.views), dive.render_views(spec, plan)):
+        truth.write_view(root, name, view, spec.sensor)
+        frames.append(truth.truth_frame(name, plan.camera, view.c2w, view.range_m, "train"))
+    truth.write_records(root, spec, plan, frames, test_every=0, open_water_pixels=0)
+    model_dir = truth.write_truth_sparse_model(root, per_view=60, seed=1)
+    assert model_dir == root / "truth" / truth.SPARSE_DIR
+    cameras = read_cameras(root / "truth" / "cameras.json")
+    obs = track_observations(cameras, model_dir)
+    ids, counts = np.unique(obs.track_ids, return_counts=True)
+    assert len(ids) > 30 and (counts >= 2).all()
+    for index, frame in enumerate(cameras.frames):
+        here = obs.frames == index
+        depth = read_truth_image(root / "truth", "depth", frame.name)
+        # within the 1% a view's range must agree to see a point (float32 images)
+        np.testing.assert_allclose(obs.ranges[here], depth[obs.rows[here], obs.cols[here]],
+                                   rtol=0.011)
+    with pytest.raises(PipelineError, match="cameras.json"):
+        truth.write_truth_sparse_model(tmp_path / "elsewhere")

@@ -11,6 +11,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from seathru.geometry.poses import pixel_of_points
 from seathru.nerf.fields import contract, grid_vertices, trilinear_lookup, uncontract
 from seathru.nerf.inference import render_frame
 from seathru.nerf.losses import (distortion_loss, reconstruction_loss, sparse_depth_loss,
@@ -130,6 +131,42 @@ def test_ray_dataset_drops_masked_and_nonfinite_pixels():
     assert len(held) == 3 and len(data) == 7
     remaining = {tuple(d.tolist()) for d in data.rays.directions}
     assert not any(tuple(d.tolist()) in remaining for d in held.directions)
+
+
+def test_rays_through_points_are_the_pixels_they_fall_in_where_the_dataset_has_them():
+    frames = [look_at_frame((x, 0.3, -4.0), name=f"v{i}", width=16, height=12, cx=8.0, cy=6.0)
+              for i, x in enumerate((-1.0, 0.0, 1.0))]
+    rng = np.random.default_rng(2)
+    images = [rng.random((12, 16, 3)).astype(np.float32) for _ in frames]
+    masks = [np.ones((12, 16), bool) for _ in frames]
+    points = rng.uniform(-0.5, 0.5, (40, 3))
+    points[0] = [60.0, 0.0, 0.0]                      # in no frame
+    row, column, _, _ = pixel_of_points(frames[1].c2w_array, frames[1].fx, frames[1].fy,
+                                        frames[1].cx, frames[1].cy, 16, 12, points[1:2])
+    masks[1][row[0], column[0]] = False               # masked: no ray there
+    data = RayDataset(frames, images, masks)
+    rays, owner = data.rays_through(points)
+    assert 0 not in owner
+    assert np.bincount(owner, minlength=40)[1] == 2
+    for ray_index, point in zip(range(len(owner)), owner):
+        # the ray's pixel is the one the point falls in, in the frame whose centre it leaves
+        origin = rays.origins[ray_index].double().numpy()
+        frame = next(f for f in frames if np.allclose(f.c2w_array[:3, 3], origin, atol=1e-5))
+        r, c, local, inside = pixel_of_points(frame.c2w_array, frame.fx, frame.fy, frame.cx,
+                                              frame.cy, 16, 12, points[point:point + 1])
+        assert inside[0]
+        pixel_direction = frame.c2w_array[:3, :3] @ np.array(
+            [(c[0] + 0.5 - frame.cx) / frame.fx, (r[0] + 0.5 - frame.cy) / frame.fy, 1.0])
+        np.testing.assert_allclose(rays.directions[ray_index].double().numpy(),
+                                   pixel_direction / np.linalg.norm(pixel_direction), atol=1e-6)
+        np.testing.assert_allclose(rays.rgb[ray_index].numpy(),
+                                   images[frames.index(frame)][r[0], c[0]])
+    # held-out rays are no longer the dataset's: the points give fewer rays, never those
+    held = data.hold_out(100, seed=1)
+    after, _ = data.rays_through(points)
+    held_directions = {tuple(np.round(d.tolist(), 6)) for d in held.directions}
+    assert len(after) < len(rays)
+    assert not any(tuple(np.round(d.tolist(), 6)) in held_directions for d in after.directions)
 
 
 # ---------------------------------------------------------------------------------- contraction

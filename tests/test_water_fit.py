@@ -605,3 +605,69 @@ def test_far_seabed_taken_for_open_water_widens_the_interval_when_it_lies_below_
         for value, half, true in zip(getattr(fit, key), allowed.halfwidth[key], TRUE[key]):
             assert abs(value - true) <= half, key
     assert not all(allowed.determined["c_med"])
+
+
+def test_pixels_of_one_surface_point_fit_the_water_closer_than_voxel_groups():
+    # The simulated survey's exact images and ranges through a perfect "model" (its depth is the
+    # true range, opaque on surfaces): the same number of surface pixels, grouped by the point
+    # they see across views, against random pixels grouped by voxel.
+    from seathru.geometry.poses import pixel_of_points
+    from seathru.io.textures import load_sample_textures
+    from seathru.io.truth import truth_frame
+    from seathru.nerf.rays import RayDataset
+    from seathru.nerf.water_fit import correspondence_rays
+    from seathru.sim import dive as dive_mod
+    from seathru.sim.water import water_params
+
+    spec = dive_mod.DiveSpec(views=10, width=160, height=120, path="survey",
+                             water=water_params("default"), seed=0, fov_deg=65.0,
+                             supersample=2, seabed_amplitude=0.08)
+    plan = dive_mod.plan_dive(spec, load_sample_textures())
+    views = list(dive_mod.render_views(spec, plan))
+    frames = [truth_frame(f"v{i}", plan.camera, v.c2w, v.range_m, "train")
+              for i, v in enumerate(views)]
+    water_flags = [~np.isfinite(v.range_m) for v in views]
+    data = RayDataset(frames, [v.water for v in views], open_water=water_flags)
+    centres = torch.tensor(np.array([f.c2w_array[:3, 3] for f in frames]), dtype=torch.float32)
+
+    def perfect_render(rays):
+        view = torch.cdist(rays.origins, centres).argmin(dim=1).numpy()
+        depth = np.empty(len(rays))
+        for v in np.unique(view):
+            here = view == v
+            frame = frames[v]
+            points = (rays.origins[here] + rays.directions[here]).double().numpy()
+            row, col, _, _ = pixel_of_points(frame.c2w_array, frame.fx, frame.fy, frame.cx,
+                                             frame.cy, frame.width, frame.height, points)
+            depth[here] = views[v].range_m[row, col]
+        depth = torch.from_numpy(depth)
+        surface = torch.isfinite(depth)
+        return {"depth_median": torch.where(surface, depth, torch.nan).float(),
+                "opacity": surface.float()}
+
+    found = correspondence_rays(data, perfect_render, anchors=4000, budget=30000, seed=3)
+    surface = found.point_ids >= 0
+    assert 0 < int(surface.sum()) <= 30000
+    # every ray of a point meets the surface at that point's distance (within the tolerance)
+    ends = found.rays.origins[surface] + found.rays.directions[surface] \
+        * found.depth[surface, None]
+    for point in torch.unique(found.point_ids[surface])[:50]:
+        members = ends[found.point_ids[surface] == point].double()
+        spread = torch.linalg.norm(members - members.mean(0), dim=1).max()
+        assert spread < 0.03 * float(found.depth[surface][found.point_ids[surface] == point].max())
+    grouped = surface_data(found.rays.origins, found.rays.directions, found.rays.rgb,
+                           found.depth, found.opacity, 0.05, open_water_opacity=0.5,
+                           open_water=found.rays.open_water, point_ids=found.point_ids)
+    # at least as many rays rendered as the anchors and the budget
+    drawn = data.fixed_subset(4000 + 30000, seed=3)
+    depth = perfect_render(drawn)
+    by_voxel = surface_data(drawn.origins, drawn.directions, drawn.rgb, depth["depth_median"],
+                            depth["opacity"], 0.05, open_water_opacity=0.5,
+                            open_water=drawn.open_water)
+    truth = np.array(spec.water.sigma_attn)
+    errors = {}
+    for name, d in (("points", grouped), ("voxels", by_voxel)):
+        fit = fit_water(d.ranges, d.observed, d.ids, d.groups, START, dark=d.dark)
+        errors[name] = np.abs(np.array(fit.sigma_attn) / truth - 1)
+    assert errors["points"].max() < 0.05, errors
+    assert errors["points"].mean() < errors["voxels"].mean(), errors

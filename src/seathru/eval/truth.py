@@ -24,7 +24,7 @@ from collections.abc import Iterable, Mapping, Sequence
 import numpy as np
 
 from seathru.eval import metrics
-from seathru.geometry.poses import pixel_of_points
+from seathru.geometry.poses import sees_unhidden
 from seathru.eval.summary import MetricScale, TruthSummary, WaterComparison
 
 SIGMA_KEYS = ("sigma_attn", "sigma_bs")
@@ -125,14 +125,7 @@ def training_view_coverage(view, view_range: np.ndarray,
     points = (rays * distance) @ c2w[:3, :3].T + c2w[:3, 3]
     counts = np.zeros((height, width), dtype=np.int32)
     for camera, camera_range in training:
-        row, column, local, inside = pixel_of_points(
-            camera.c2w_array, camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
-            camera.height, points)
-        seen_range = np.asarray(camera_range, dtype=np.float64)[row, column]
-        distance_there = np.linalg.norm(local, axis=-1)
-        with np.errstate(invalid="ignore"):
-            unhidden = np.abs(seen_range - distance_there) <= tolerance * distance_there
-        counts += surface & inside & unhidden
+        counts += surface & sees_unhidden(camera, camera_range, points, tolerance)
     return counts
 
 

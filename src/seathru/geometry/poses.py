@@ -224,6 +224,27 @@ def pixel_of_points(c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float,
             local, inside)
 
 
+def sees_unhidden(camera, camera_range: np.ndarray, points: np.ndarray,
+                  tolerance: float) -> np.ndarray:
+    """Whether a camera sees world points ``(N, 3)`` with nothing nearer in front of them.
+
+    A point is seen when it lies in front of the camera, inside its image, and the camera's own
+    range at the pixel it falls in (``camera_range`` ``(H, W)``, along the pixel's ray) agrees
+    with the point's distance within ``tolerance`` (relative). ``camera`` has ``c2w_array``,
+    ``fx``, ``fy``, ``cx``, ``cy``, ``width``, ``height`` (a ``seathru.io.cameras.Frame``).
+
+    Returns:
+        ``(N,)`` bool.
+    """
+    row, column, local, inside = pixel_of_points(camera.c2w_array, camera.fx, camera.fy,
+                                                 camera.cx, camera.cy, camera.width,
+                                                 camera.height, points)
+    there = np.asarray(camera_range, np.float64)[row, column]
+    distance = np.linalg.norm(local, axis=-1)
+    with np.errstate(invalid="ignore"):
+        return inside & (np.abs(there - distance) <= tolerance * distance)
+
+
 def frustum_corners(c2w: np.ndarray, intrinsics: np.ndarray, width: int, height: int,
                     depth: float) -> np.ndarray:
     """World positions ``(4, 3)`` of the image corners at camera depth ``depth``."""

@@ -97,13 +97,27 @@ def nerfstudio_transforms(cameras: CameraSet, image_paths: dict[str, str],
 
 def colmap_reconstruction(cameras: CameraSet, image_names: dict[str, str],
                           points: np.ndarray | None = None, colours: np.ndarray | None = None,
-                          distortion: dict[str, dict[str, float]] | None = None
-                          ) -> pycolmap.Reconstruction:
+                          distortion: dict[str, dict[str, float]] | None = None,
+                          seen: np.ndarray | None = None) -> pycolmap.Reconstruction:
     """A COLMAP model of ``cameras``: one camera per distinct intrinsics (PINHOLE, or OPENCV
     with distortion), one image per frame (``image_names``: the file names), and ``points``
-    ``(M, 3)`` with ``colours`` ``(M, 3)`` uint8, without tracks."""
+    ``(M, 3)`` (source units) with ``colours`` ``(M, 3)`` uint8. Without ``seen`` the points
+    have no tracks; with it (``(M, V)`` bool over ``cameras.frames``) point m is observed in
+    every frame v where ``seen[m, v]``, at the pixel it projects to there (undistorted)."""
+    observations: dict[str, list[tuple[int, np.ndarray]]] = {}
+    if seen is not None:
+        if points is None or seen.shape != (len(points), len(cameras.frames)):
+            raise ValueError("seen must be (points, frames) bool")
+        xyz = np.asarray(points, np.float64)
+        for view, frame in enumerate(cameras.frames):
+            w2c = np.linalg.inv(source_c2w(cameras, frame))
+            local = xyz[seen[:, view]] @ w2c[:3, :3].T + w2c[:3, 3]
+            xy = np.stack([frame.fx * local[:, 0] / local[:, 2] + frame.cx,
+                           frame.fy * local[:, 1] / local[:, 2] + frame.cy], -1)
+            observations[frame.name] = list(zip(np.flatnonzero(seen[:, view]).tolist(), xy))
     model = pycolmap.Reconstruction()
     camera_ids: dict[tuple, int] = {}
+    elements: dict[int, list[pycolmap.TrackElement]] = {}
     for image_id, frame in enumerate(sorted(cameras.frames, key=lambda f: f.name), start=1):
         k = (distortion or {}).get(frame.name) or {}
         coeffs = [float(k.get(key, 0.0)) for key in DISTORTION_KEYS]
@@ -117,13 +131,19 @@ def colmap_reconstruction(cameras: CameraSet, image_names: dict[str, str],
                 model=model_name, width=int(frame.width), height=int(frame.height),
                 params=[float(p) for p in params], camera_id=camera_ids[key]))
         w2c = np.linalg.inv(source_c2w(cameras, frame))
+        seen_here = observations.get(frame.name, [])
+        for index, (point, _) in enumerate(seen_here):
+            elements.setdefault(point, []).append(pycolmap.TrackElement(image_id, index))
         image = pycolmap.Image(name=image_names[frame.name], camera_id=camera_ids[key],
-                               image_id=image_id)
+                               image_id=image_id,
+                               points2D=[pycolmap.Point2D(np.asarray(xy, np.float64))
+                                         for _, xy in seen_here])
         model.add_image_with_trivial_frame(image, pycolmap.Rigid3d(w2c[:3, :4]))
     if points is not None:
         colours = np.zeros((len(points), 3), np.uint8) if colours is None else colours
-        for xyz, rgb in zip(np.asarray(points, np.float64), np.asarray(colours, np.uint8)):
-            model.add_point3D(xyz, pycolmap.Track(), rgb)
+        for index, (xyz, rgb) in enumerate(zip(np.asarray(points, np.float64),
+                                               np.asarray(colours, np.uint8))):
+            model.add_point3D(xyz, pycolmap.Track(elements.get(index, [])), rgb)
     return model
 
 

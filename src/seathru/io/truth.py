@@ -18,6 +18,10 @@ image ``c_med``; cameras.json's near/far come from the finite ranges only. Image
 Readers: ``seathru.io.cameras.read_cameras`` (cameras.json), ``seathru.io.water.read_truth_water``
 (water.json), ``seathru.io.evaluation.read_truth_image`` (truth images), ``seathru.io.dng`` (raw
 files).
+
+``truth/sparse/`` is not written by the simulation: :func:`write_truth_sparse_model` adds a
+COLMAP model of points on the true surfaces there, which training on ``truth/cameras.json``
+then uses as it uses COLMAP's points beside a poses step's cameras (the water benchmark).
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ from seathru.errors import PipelineError
 from seathru.io.atomic import write_json, write_text
 from seathru.io.cameras import CameraSet, Frame, write_cameras
 from seathru.io.dng import write_dng
-from seathru.io.images import write_8bit, write_float_tiff
+from seathru.io.images import read_image, write_8bit, write_float_tiff
 from seathru.sim.dive import DivePlan, DiveSpec, SimulatedView
 from seathru.sim.sensor import Pinhole, SensorConfig, jpeg_gain
 
@@ -41,6 +45,7 @@ LAYOUT = __doc__.split("::\n\n", 1)[1].split("\n\n", 1)[0] + "\n"
 NEAR_FAR_MARGIN = 0.05  # cameras.json near/far = (1 -+ margin) * min/max finite range
 JPEG_QUALITY = 95
 TRUTH_KINDS = ("clean", "water", "depth")
+SPARSE_DIR = "sparse"   # beside truth/cameras.json, as seathru.io.tracks looks for it
 
 
 def view_names(views: int) -> list[str]:
@@ -189,3 +194,33 @@ The JPEG is the bilinearly demosaiced raw, normalised the same way, times one ga
 the whole set (truth/sensor.json, `jpeg`), clipped and sRGB encoded, with no white
 balance: like a camera JPEG it keeps each image's exposure and noise.
 """
+
+
+def write_truth_sparse_model(root: str | os.PathLike, per_view: int = 300, noise: float = 0.0,
+                             seed: int = 0) -> Path:
+    """A COLMAP model of points on the dive's true surfaces, ``truth/sparse/``, in place of the
+    one structure from motion would give (``seathru.sim.sparse.truth_sparse_points``: every
+    view draws ``per_view`` surface pixels; a point is kept with the two or more views that
+    see it unhidden; ``noise`` is its relative position error). Written atomically; returns the
+    folder.
+
+    Raises:
+        PipelineError: ``root`` is not a simulate output (names the missing file).
+    """
+    from seathru.io.atomic import atomic_dir
+    from seathru.io.cameras import read_cameras
+    from seathru.io.exports import colmap_reconstruction
+    from seathru.sim.sparse import truth_sparse_points
+
+    truth = Path(root) / "truth"
+    if not (truth / "cameras.json").is_file():
+        raise PipelineError(f"{truth / 'cameras.json'}: missing; pass a simulate output folder")
+    cameras = read_cameras(truth / "cameras.json")
+    ranges = [read_image(truth / "depth" / f"{frame.name}.tiff") for frame in cameras.frames]
+    cloud = truth_sparse_points(cameras.frames, ranges, per_view=per_view, noise=noise,
+                                seed=seed)
+    model = colmap_reconstruction(cameras, {f.name: Path(f.image).name for f in cameras.frames},
+                                  cloud.points, seen=cloud.seen)
+    with atomic_dir(truth / SPARSE_DIR) as tmp:
+        model.write(tmp)
+    return truth / SPARSE_DIR

@@ -121,8 +121,15 @@ class MediumConfig:
     refit_rays: int = setting(65536, help="training rays rendered for a water refit")
     refit_opacity: float = setting(0.9, help="a refit uses rays whose object opacity exceeds "
                                              "this (surfaces, not fog or open water)")
+    refit_grouping: Literal["points", "voxels"] = setting(
+        "voxels", help="refit: pixels are grouped by the voxel their surface point falls in "
+                       "(voxels: refit_rays random pixels) or by the surface point they see "
+                       "(points: a quarter of refit_rays find surface points, whose pixel in "
+                       "every view that sees them is taken; closer on exact geometry, no "
+                       "better on the demo, docs/water.md)")
     refit_voxel: float = setting(0.005, help="refit: surface points are grouped in voxels of "
-                                             "this share of the scene box diagonal")
+                                             "this share of the scene box diagonal (voxel "
+                                             "grouping, and the intervals' regrouping)")
     interval_range_error: float = setting(
         0.05, help="relative error of the model's depth that water.json's intervals allow for "
                    "(the fit is redone on ranges with this much more error and the move widens "

@@ -18,6 +18,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from seathru.geometry.poses import pixel_of_points
+
 
 def render_size(width: int, height: int, downscale: int = 1) -> tuple[int, int]:
     """(width, height) of an image rendered at ``downscale``: each side floor-divided, at least
@@ -214,12 +216,15 @@ class RayDataset:
     """
 
     def __init__(self, frames, images, masks=None, device="cpu", open_water=None):
-        origins, dirs, near, far, rgb, water = [], [], [], [], [], []
+        origins, dirs, near, far, rgb, water, pixel_ids = [], [], [], [], [], [], []
+        self.frames = list(frames)
+        self._pixel_offsets = np.cumsum([0] + [f.width * f.height for f in self.frames])
         masks = masks if masks is not None else [None] * len(frames)
         water_masks = open_water if open_water is not None else [None] * len(frames)
         self.dropped_nonfinite = 0
         self.depth_rays: DepthRays | None = None   # set by seathru.nerf.prepare
-        for frame, image, mask, water_mask in zip(frames, images, masks, water_masks):
+        for index, (frame, image, mask, water_mask) in enumerate(zip(frames, images, masks,
+                                                                     water_masks)):
             image = np.asarray(image, dtype=np.float32)
             if image.shape[:2] != (frame.height, frame.width):
                 raise ValueError(f"frame {frame.name}: image is {image.shape[1]}x{image.shape[0]}"
@@ -236,12 +241,15 @@ class RayDataset:
             near.append(torch.full((n,), float(frame.near)))
             far.append(torch.full((n,), float(frame.far)))
             rgb.append(torch.from_numpy(image.reshape(-1, 3))[keep_t])
+            pixel_ids.append(torch.arange(keep.size)[keep_t] + int(self._pixel_offsets[index]))
             if open_water is not None:
                 flags = np.zeros(keep.shape, bool) if water_mask is None else water_mask
                 water.append(torch.from_numpy(np.asarray(flags, bool).reshape(-1))[keep_t])
         self.rays = RayBatch(torch.cat(origins), torch.cat(dirs), torch.cat(near),
                              torch.cat(far), torch.cat(rgb),
                              torch.cat(water) if open_water is not None else None).to(device)
+        # (R,) ascending: frame offset + row * width + column of each ray's pixel
+        self.pixel_ids = torch.cat(pixel_ids)
 
     def __len__(self) -> int:
         return len(self.rays)
@@ -258,8 +266,42 @@ class RayDataset:
         order = torch.randperm(len(self), generator=generator).to(self.rays.origins.device)
         count = min(count, len(self) // 2)
         held = self.rays.subset(order[:count])
-        self.rays = self.rays.subset(order[count:].sort().values)
+        kept = order[count:].sort().values
+        self.rays = self.rays.subset(kept)
+        self.pixel_ids = self.pixel_ids[kept.cpu()]
         return held
+
+    def rays_through(self, points: np.ndarray) -> tuple[RayBatch, np.ndarray]:
+        """The dataset's rays whose pixel each point falls in, in every frame that has the
+        point in front of it and inside its image (pixels left out of the dataset, masked or
+        held out, give none). Whether the frame sees the point or something in front of it is
+        for the caller to judge (the model's depth).
+
+        Args:
+            points: (N, 3) world points (the frames' normalised units).
+
+        Returns:
+            the rays (M of them) and (M,) the index into ``points`` of each.
+
+        Example::
+
+            rays, which = dataset.rays_through(surface_points)
+        """
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        wanted, owners = [], []
+        for index, frame in enumerate(self.frames):
+            row, column, _, inside = pixel_of_points(frame.c2w_array, frame.fx, frame.fy,
+                                                     frame.cx, frame.cy, frame.width,
+                                                     frame.height, points)
+            wanted.append(self._pixel_offsets[index] + row[inside] * frame.width
+                          + column[inside])
+            owners.append(np.flatnonzero(inside))
+        wanted_t = torch.from_numpy(np.concatenate(wanted).astype(np.int64))
+        owners_np = np.concatenate(owners)
+        position = torch.searchsorted(self.pixel_ids, wanted_t).clamp_max(len(self.pixel_ids) - 1)
+        present = (self.pixel_ids[position] == wanted_t).numpy()
+        index = position[torch.from_numpy(present)]
+        return self.rays.subset(index.to(self.rays.origins.device)), owners_np[present]
 
     def fixed_subset(self, count: int, seed: int) -> RayBatch:
         """A reproducible subset of at most ``count`` rays (evaluation probes)."""

@@ -40,9 +40,9 @@ from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruc
 from seathru.nerf.model import SeaThruModel
 from seathru.nerf.rays import RayBatch, RayDataset
 from seathru.nerf.medium import DIRECTIONAL_MODES
-from seathru.nerf.water_fit import (SurfaceData, far_surface_range, fit_water,
-                                    interval_determined, laplace_halfwidths, robust_halfwidths,
-                                    surface_data)
+from seathru.nerf.water_fit import (SurfaceData, correspondence_rays, far_surface_range,
+                                    fit_water, interval_determined, laplace_halfwidths,
+                                    robust_halfwidths, surface_data)
 
 CHECKPOINT_FORMAT = "seathru-train-checkpoint/1"
 WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
@@ -565,17 +565,26 @@ class Trainer:
         """Surface data of one set of rendered training rays, grouped at ``medium.refit_voxel``
         times each of ``voxel_factors``."""
         c, model = self.config, self.model
-        rays = self.data.fixed_subset(c.medium.refit_rays, seed)
-        rendered = self.render_batch(rays)
+        point_ids = None
+        if c.medium.refit_grouping == "points":
+            found = correspondence_rays(self.data, self.render_batch, c.medium.refit_rays // 4,
+                                        c.medium.refit_rays, seed, c.medium.refit_opacity)
+            rays, depth, opacity, point_ids = (found.rays, found.depth, found.opacity,
+                                               found.point_ids)
+        else:
+            rays = self.data.fixed_subset(c.medium.refit_rays, seed)
+            rendered = self.render_batch(rays)
+            depth, opacity = rendered["depth_median"], rendered["opacity"]
         diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
         open_water = refit_open_water_opacity(c.medium, rays.open_water is not None,
                                               self._progress())
         below = below_horizon(rays.directions, model.scene.get("up"), c.medium.horizon_margin)
-        return [surface_data(rays.origins, rays.directions, rays.rgb, rendered["depth_median"],
-                             rendered["opacity"], factor * c.medium.refit_voxel * diagonal,
-                             c.medium.refit_opacity, open_water_opacity=open_water,
-                             open_water=rays.open_water, below_horizon=below)
-                for factor in voxel_factors]
+        # the first grouping is the refit's own; other factors regroup the same pixels by voxel
+        return [surface_data(rays.origins, rays.directions, rays.rgb, depth, opacity,
+                             factor * c.medium.refit_voxel * diagonal, c.medium.refit_opacity,
+                             open_water_opacity=open_water, open_water=rays.open_water,
+                             below_horizon=below, point_ids=point_ids if i == 0 else None)
+                for i, factor in enumerate(voxel_factors)]
 
     @torch.no_grad()
     def refit_water(self) -> dict:
