@@ -2,7 +2,9 @@
 
 For every water preset and camera path (orbit: the hard case with no open water; transect;
 survey: open water in every frame) a small dive is simulated and trained on its TRUE cameras
-(so the water, not COLMAP, is what is measured) twice, side by side: with the image cues
+(so the water, not COLMAP, is what is measured), with the sparse cloud COLMAP would give
+replaced by points on the true surfaces (``seathru.io.truth.write_truth_sparse_model``: the
+sparse-depth loss and the track cue work as in the pipeline; ``--no-sparse`` leaves them out), twice, side by side: with the image cues
 (the veiling light started at the smoothest image regions' colour, the water refitted on the
 model's own surfaces with open-water rays and the dark-pixel bound: ``train.medium.*``) and
 without them (``refit_at=[]``, ``veiling_light_init=false``). Per parameter and channel: the fitted value, its 95% interval, the truth;
@@ -44,16 +46,24 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "src"))
 RESULTS = REPO / "benchmarks" / "results" / "water.md"
 KEYS = ("sigma_attn", "sigma_bs", "c_med")
+# scored as the evaluate step scores the demo (seathru.eval.truth.view_truth_metrics: open water
+# left out; "covered": the pixels two or more training views see)
+SCORES = {"restored_psnr": "restored_psnr_linear", "full_psnr": "full_vs_clean_psnr_linear",
+          "restored_psnr_covered": "restored_psnr_linear_covered",
+          "covered_share": "covered_share"}
 VARIANTS = {"cues": [], "no cues": ["--medium.refit-at", "--no-medium.veiling-light-init"]}
 
 
 def simulate(root: Path, path: str, water: str, args) -> Path:
+    from seathru.io.truth import write_truth_sparse_model
     from seathru.steps.simulate import Settings, simulate as run_simulation
 
     out = root / f"{path}_{water}"
     if not (out / "truth" / "cameras.json").exists():
         run_simulation(out, Settings(views=args.views, width=args.width, height=args.height,
                                      path=path, water=water, seed=args.seed, workers=1))
+    if args.sparse and not (out / "truth" / "sparse").is_dir():
+        write_truth_sparse_model(out, seed=args.seed)
     return out
 
 
@@ -75,7 +85,7 @@ def train(sim: Path, variant: str, args) -> Path:
 def measure(sim: Path, out: Path) -> dict:
     import torch
 
-    from seathru.eval.metrics import psnr
+    from seathru.eval.truth import training_view_coverage, view_truth_metrics
     from seathru.io.cameras import read_cameras
     from seathru.io.images import read_image
     from seathru.io.model import load_model
@@ -90,13 +100,19 @@ def measure(sim: Path, out: Path) -> dict:
     determined = (report.uncertainty or {}).get("determined")
     model = load_model(out / "model.pt")
     cameras = read_cameras(sim / "truth" / "cameras.json")
-    restored, full, clean = [], [], []
+    training = [(f, _truth_range(sim, f, cameras.scale)) for f in cameras.split("train")]
+    scores = []
     for frame in cameras.split("test"):
         rendered = render_frame(model, frame)
-        restored.append(rendered["restored"])
-        full.append(rendered["rgb"])
-        clean.append(read_image(sim / "truth" / "clean" / f"{frame.name}.tiff"))
-    clean_stack = np.stack(clean)
+        view_range = _truth_range(sim, frame, cameras.scale)
+        covered = training_view_coverage(frame, view_range, training) >= 2
+        scores.append(view_truth_metrics(
+            full=rendered["rgb"], restored=rendered["restored"], depth=rendered["depth"],
+            clean=read_image(sim / "truth" / "clean" / f"{frame.name}.tiff"),
+            water=read_image(sim / "truth" / "water" / f"{frame.name}.tiff"),
+            truth_depth=np.where(np.isfinite(view_range) & (view_range > 0),
+                                 view_range / cameras.scale, np.inf),
+            gain=np.ones(3), metres_per_unit=1.0 / cameras.scale, covered=covered))
     selection = json.loads((out / "selection.json").read_text())
     from bench_water_intervals import assess_model
 
@@ -115,8 +131,17 @@ def measure(sim: Path, out: Path) -> dict:
                 "determined": None if determined is None else determined[key][channel],
                 **_robust(robust, key, channel, report.scale, t)})
     return {"medium": selection.get("final_mode"), "params": params,
-            "restored_psnr": psnr(np.stack(restored), clean_stack),
-            "full_psnr": psnr(np.stack(full), clean_stack)}
+            **{key: float(np.nanmean([score[column] for score in scores]))
+               for key, column in SCORES.items()}}
+
+
+def _truth_range(sim: Path, frame, scale: float) -> np.ndarray:
+    """The true range of a view in the camera file's units; inf where it sees open water."""
+    from seathru.io.images import read_image
+
+    depth = read_image(sim / "truth" / "depth" / f"{frame.name}.tiff").astype(np.float64)
+    depth = depth[..., 0] if depth.ndim == 3 else depth
+    return np.where(np.isfinite(depth) & (depth > 0), depth * scale, np.inf)
 
 
 def _robust(record: dict, key: str, channel: int, scale: float, truth: float) -> dict:
@@ -150,6 +175,9 @@ def main() -> None:
                         help="extra train flags for every run, e.g. "
                              "'--field.view-dependent-colour off'")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--sparse", action=argparse.BooleanOptionalAction, default=True,
+                        help="write truth/sparse (points on the true surfaces) beside the true "
+                             "cameras, as COLMAP's points are beside the poses step's")
     parser.add_argument("--work", type=Path, default=None)
     parser.add_argument("--out", type=Path, default=RESULTS)
     parser.add_argument("--rewrite", type=Path, default=None,
@@ -222,8 +250,12 @@ def _by_path(rows: list[dict], variant: str) -> list[str]:
             errors = [p["fitted"] / p["truth"] - 1 for p in params if p["parameter"] == key]
             medians.append(f"`{key}` {100 * np.median(np.abs(errors)):.0f}% "
                            f"({100 * np.median(errors):+.0f}%)")
+        restored = [r.get("restored_psnr_covered", np.nan) for r in rows
+                     if r["variant"] == variant and r["path"] == path]
         lines.append(f"  - {path}: {close}/{len(params)} within 5%; median error (signed): "
-                     + ", ".join(medians))
+                     + ", ".join(medians)
+                     + f"; restored vs clean on covered pixels {np.nanmedian(restored):.1f} dB "
+                       "median")
     return lines
 
 
@@ -235,15 +267,17 @@ def write_results(rows: list[dict], args, seconds: float, machine: str | None = 
              "`?` = flagged as not determined by the views (water.json); robust: "
              "`water_fit.robust_halfwidths` recomputed on the final model's surfaces with its "
              "defaults (no allowance for range error, grouping or the 1% floor), around "
-             "the trained value widened by its distance to that fit."
+             "the trained value widened by its distance to that fit. Restored and full render "
+             "against the clean truth as the evaluate step scores them: open water left out; "
+             "covered: only the pixels two or more training views see."
              + (f" Extra train flags: `{args.train_args}`." if args.train_args else ""), ""]
     for variant in dict.fromkeys(r["variant"] for r in rows):
         lines.append("- " + _summary(rows, variant))
         lines += _by_path(rows, variant)
     lines += ["", "| path | water | variant | medium | sigma_attn error | sigma_bs error | "
               "c_med error | truth in interval | truth in robust interval | "
-              "restored / full vs clean (dB) |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+              "restored / full vs clean (dB) | restored, covered (dB) |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         cells = []
         for key in KEYS:
@@ -258,7 +292,8 @@ def write_results(rows: list[dict], args, seconds: float, machine: str | None = 
         lines.append(f"| {r['path']} | {r['water']} | {r['variant']} | {r['medium']} | "
                      + " | ".join(cells) + f" | {sum(covered)}/{len(covered)} | "
                      f"{sum(robust)}/{len(robust)} | "
-                     f"{r['restored_psnr']:.1f} / {r['full_psnr']:.1f} |")
+                     f"{r['restored_psnr']:.1f} / {r['full_psnr']:.1f} | "
+                     f"{r.get('restored_psnr_covered', float('nan')):.1f} |")
     machine = machine or (f"{cpu_name()}; load {load_average()}; {time.strftime('%Y-%m-%d')}; "
                           f"{seconds / 60:.0f} min in all")
     lines += ["", f"Machine: {machine}.", ""]

@@ -628,7 +628,8 @@ def test_colmap_recovers_a_simulated_orbit_through_ingest(tmp_path):
     cameras = read_cameras(out / "cameras.json")
     truth = read_cameras(simulated / "truth" / "cameras.json")
     frame = cameras.frames[0]
-    assert frame.width in (159, 160) and frame.fx == pytest.approx(truth.frames[0].fx / 2,
+    # undistortion crops a pixel or two; COLMAP's threaded solve varies the crop under load
+    assert 156 <= frame.width <= 160 and frame.fx == pytest.approx(truth.frames[0].fx / 2,
                                                                    rel=0.02)
     assert tifffile.imread(cameras.image_path(frame)).shape == (frame.height, frame.width, 3)
 
