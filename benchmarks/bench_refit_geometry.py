@@ -7,6 +7,7 @@ colour / colour and range), colmap_sim (simulator images undistorted onto COLMAP
 colmap_sim_tp (the same grouped by the true points), colmap_train (the training images); a
 "+q" suffix keeps the smoothest q share of surface pixels. c_med is in each geometry's units.
 Prints errors against the true water, %, R G B."""
+import os
 import sys
 import numpy as np, torch
 from pathlib import Path; sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
@@ -28,7 +29,6 @@ tw = read_truth_water(f"{truth_dir}/water.json").as_dict()
 mpu = truth_eval.camera_metric_scale(camera_centres(ccams), camera_centres(tcams, source_units=True), ccams.scale).scale
 on_frame = truth_on_frames(ccams)
 tframes = {f.name: f for f in tcams.frames}
-import os
 VOXEL_M = 0.054 * float(os.environ.get("VF", "1"))
 
 def box(img):   # 2x2 box blend (what a half-pixel bilinear shift does)
@@ -84,8 +84,7 @@ def view_data(name, variant):
     return o, d, rgb.reshape(-1, 3), depth.reshape(-1) * per_m, per_m
 
 train_names = [f.name for f in ccams.split("train")]
-SHAPE = {}
-for f in ccams.frames: SHAPE[f.name] = (f.height, f.width)
+SHAPE = {f.name: (f.height, f.width) for f in ccams.frames}
 TSHAPE = {f.name: (f.height, f.width) for f in tcams.frames}
 for spec in VARIANTS:
     variant, _, q = spec.partition("+")
