@@ -5,7 +5,11 @@ e.g. results/demo 12800 0,1,2,3 truth,colmap_sim_tp,colmap_sim,colmap_train; VF=
 0.054 m voxel. Variants: truth (simulator images, own cameras), truth_box/truth_box2 (2x2 blend of
 colour / colour and range), colmap_sim (simulator images undistorted onto COLMAP frames),
 colmap_sim_tp (the same grouped by the true points), colmap_train (the training images); a
-"+q" suffix keeps the smoothest q share of surface pixels. c_med is in each geometry's units.
+"+q" suffix keeps the smoothest q share of surface pixels; "~W" averages each pixel's colour
+over an image box W metres across at its range, "~W@S" also leaves out pixels whose box spans a
+relative range spread above S ("~W@-S": only that, colours unaveraged). Environment: DIRBIN=a
+groups by voxel and by viewing direction (cells of a in each component of the unit vector),
+NODARK=1 fits without the dark-pixel bound. c_med is in each geometry's units.
 Prints errors against the true water, %, R G B."""
 import os
 import sys
@@ -42,6 +46,40 @@ def local_contrast(img):
     lum = np.where(np.isfinite(lum), lum, 0)
     hi = cv2.dilate(lum, np.ones((3, 3), np.uint8)); lo = cv2.erode(lum, np.ones((3, 3), np.uint8))
     return ((hi - lo) / np.maximum(hi + lo, 1e-6)).reshape(-1)
+
+def footprint_mean(img, rng_m, fx, width_m, spread=None):
+    """Each pixel's colour averaged over an image box width_m metres across at its range
+    (summed-area table, continuous box corners; NaN pixels left out)."""
+    h, w = img.shape[:2]
+    valid = np.isfinite(img).all(-1)
+    val = np.where(valid[..., None], img, 0.0).astype(np.float64)
+    sat = np.zeros((h + 1, w + 1, 4))
+    sat[1:, 1:, :3] = val.cumsum(0).cumsum(1)
+    sat[1:, 1:, 3] = valid.cumsum(0).cumsum(1)
+    half = np.where(np.isfinite(rng_m) & (rng_m > 0), 0.5 * width_m * fx / np.where(rng_m > 0, rng_m, 1), 0.5)
+    half = np.maximum(half, 0.5).reshape(h, w)
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    def at(y, x):   # bilinear read of the table at continuous (y, x)
+        y = np.clip(y, 0, h); x = np.clip(x, 0, w)
+        y0 = np.minimum(np.floor(y).astype(int), h - 1); x0 = np.minimum(np.floor(x).astype(int), w - 1)
+        ty = (y - y0)[..., None]; tx = (x - x0)[..., None]
+        return ((1 - ty) * ((1 - tx) * sat[y0, x0] + tx * sat[y0, x0 + 1])
+                + ty * ((1 - tx) * sat[y0 + 1, x0] + tx * sat[y0 + 1, x0 + 1]))
+    s = at(yy + half, xx + half) - at(yy - half, xx + half) - at(yy + half, xx - half) + at(yy - half, xx - half)
+    out = s[..., :3] / np.maximum(s[..., 3:], 1e-9)
+    out = np.where(valid[..., None], out, np.nan)
+    if spread is not None:   # leave out pixels whose box spans more than `spread` in range
+        r = np.where(np.isfinite(rng_m) & (rng_m > 0), rng_m, 0.0).reshape(h, w)
+        fin = (np.isfinite(rng_m) & (rng_m > 0)).reshape(h, w)
+        sat[:] = 0
+        sat[1:, 1:, 0] = r.cumsum(0).cumsum(1); sat[1:, 1:, 1] = (r * r).cumsum(0).cumsum(1)
+        sat[1:, 1:, 2] = fin.cumsum(0).cumsum(1); sat[1:, 1:, 3] = 1.0
+        sat[1:, 1:, 3] = np.ones((h, w)).cumsum(0).cumsum(1)
+        t = at(yy + half, xx + half) - at(yy - half, xx + half) - at(yy + half, xx - half) + at(yy - half, xx - half)
+        m = t[..., 0] / np.maximum(t[..., 2], 1e-9); var = t[..., 1] / np.maximum(t[..., 2], 1e-9) - m * m
+        bad = fin & ((t[..., 2] < t[..., 3] - 1e-6) | (np.sqrt(np.maximum(var, 0)) > spread * np.maximum(m, 1e-9)))
+        out[bad] = np.nan
+    return out.reshape(-1, 3)
 
 def view_data(name, variant):
     """origins, dirs (normalised), rgb, range (normalised), units per metre"""
@@ -88,11 +126,19 @@ SHAPE = {f.name: (f.height, f.width) for f in ccams.frames}
 TSHAPE = {f.name: (f.height, f.width) for f in tcams.frames}
 for spec in VARIANTS:
     variant, _, q = spec.partition("+")
+    variant, _, foot = variant.partition("~")
+    foot, _, spread = foot.partition("@")
     for seed in SEEDS:
         rng = np.random.default_rng(seed)
         parts = [[], [], [], []]
         for name in train_names:
             o, d, rgb, rng_, per_m = view_data(name, variant)
+            if foot:
+                fr = tframes[name] if variant.startswith("truth") else next(x for x in ccams.frames if x.name == name)
+                rgb = footprint_mean(rgb.reshape(fr.height, fr.width, 3), rng_ / per_m, fr.fx, float(foot), abs(float(spread)) if spread else None)
+                if spread.startswith("-"):
+                    keep_nan = ~np.isfinite(rgb).all(1)
+                    rgb = view_data(name, variant)[2].copy(); rgb[keep_nan] = np.nan
             good = np.isfinite(rgb).all(1) & ~np.isnan(rng_)
             if q:
                 c = local_contrast(rgb.reshape(*(TSHAPE if variant.startswith("truth") else SHAPE)[name], 3))
@@ -106,11 +152,19 @@ for spec in VARIANTS:
             parts[3].append(torch.from_numpy(rng_[pick]))
         o, d, rgb, rr = (torch.cat(p) for p in parts)
         ow = ~torch.isfinite(rr)
+        pids = None
+        if os.environ.get("DIRBIN"):   # group by voxel and by a cell of the viewing direction
+            fin = torch.isfinite(rr)
+            pts = o + d * torch.where(fin, rr, 0)[:, None]
+            key = torch.cat([torch.floor(pts / (VOXEL_M * per_m)), torch.floor(d / float(os.environ["DIRBIN"]))], 1).long()
+            _, pids = torch.unique(key, dim=0, return_inverse=True)
+            pids = torch.where(fin, pids, -1)
         data = water_fit.surface_data(o, d, rgb, torch.where(ow, torch.nan, rr), (~ow).double(),
-                                      VOXEL_M * per_m, 0.9, open_water_opacity=0.5, open_water=ow)
+                                      VOXEL_M * per_m, 0.9, open_water_opacity=0.5, open_water=ow,
+                                      point_ids=pids)
         fit = water_fit.fit_water(data.ranges, data.observed, data.ids, data.groups,
                                   {"sigma_attn": 0.2 / per_m, "sigma_bs": 0.2 / per_m, "c_med": 0.2},
-                                  dark=data.dark)
+                                  dark=None if os.environ.get("NODARK") else data.dark)
         err = {k: [100 * (float(v) * per_m / t - 1) for v, t in zip(getattr(fit, k), tw[k])]
                for k in ("sigma_attn", "sigma_bs", "c_med")}
         print(f"{spec:18s} seed {seed}: sa " + " ".join(f"{e:+5.1f}" for e in err["sigma_attn"])

@@ -220,6 +220,56 @@ def test_undistortion_maps_rays_onto_the_pinhole_camera():
     assert 0 < (~warped).sum() < 3 * 30 * 40
 
 
+def _source_and_expected(camera, warp, texture):
+    """``texture`` (a function of the ray's x/z, y/z) on the distorted source camera, and what
+    the undistorted camera should see of it."""
+    v, u = np.mgrid[0:camera.height, 0:camera.width] + 0.5
+    rays = camera.cam_from_img(np.stack([u.ravel(), v.ravel()], 1))
+    source = texture(rays[:, 0], rays[:, 1]).reshape(camera.height, camera.width, 3)
+    fv, fu = np.mgrid[0:warp.height, 0:warp.width] + 0.5
+    return source, texture((fu - warp.cx) / warp.fx, (fv - warp.cy) / warp.fy)
+
+
+def test_cubic_undistortion_keeps_the_detail_bilinear_blurs():
+    camera = make_camera("SIMPLE_RADIAL", 160, 120, [130.0, 80.0, 60.0, -0.02])
+    warp = undistortion(camera)
+
+    def fine(x, y):   # a period of about 4 pixels: the detail a bilinear warp averages away
+        return np.stack([0.5 + 0.4 * np.sin(200 * x), 0.5 + 0.4 * np.cos(170 * y),
+                         0.5 + 0.4 * np.sin(150 * (x - y))], -1).astype(np.float32)
+
+    source, expected = _source_and_expected(camera, warp, fine)
+    inner = (slice(4, -4), slice(4, -4))
+    error = {how: np.sqrt(np.mean((warp.warp_image(source, how)[inner] - expected[inner]) ** 2))
+             for how in ("linear", "cubic")}
+    assert error["cubic"] < 0.5 * error["linear"], error
+
+    # the cubic kernel overshoots at an edge; radiance stays non-negative
+    step = np.zeros((120, 160, 3), np.float32)
+    step[:, 80:] = 1.0
+    assert warp.warp_image(step, "linear").min() >= 0
+    cubic = warp.warp_image(step, "cubic")
+    assert cubic.min() >= 0 and cubic.max() > 1.0
+
+
+def test_cubic_undistortion_masks_every_pixel_a_masked_one_reaches():
+    camera = make_camera("SIMPLE_RADIAL", 80, 60, [70.0, 40.0, 30.0, 0.05])
+    warp = undistortion(camera)
+    mask = np.ones((60, 80), bool)
+    mask[30, 40] = False   # one clipped pixel
+    # destination pixels whose 4x4 cubic kernel reads source pixel (30, 40)
+    column, row = np.floor(warp.map_x).astype(int), np.floor(warp.map_y).astype(int)
+    reached = (np.abs(column - 40 + 0.5) <= 1.5) & (np.abs(row - 30 + 0.5) <= 1.5)
+    cubic = warp.warp_mask(mask, "cubic")
+    assert reached.sum() >= 4 and not cubic[reached].any()
+    assert (~cubic).sum() <= 4 * reached.sum()    # and not much more
+    assert (~warp.warp_mask(mask)).sum() <= 2     # nearest: the pixel itself
+    image = np.ones((60, 80, 3), np.float32)
+    image[30, 40] = 5.0                            # its value spreads where the mask says
+    spread = np.abs(warp.warp_image(image, "cubic") - 1).max(-1) > 1e-5
+    assert not (spread & cubic).any()
+
+
 def test_pinhole_cameras_are_not_resampled():
     warp = undistortion(make_camera("PINHOLE", 64, 48, [50.0, 50.0, 32.0, 24.0]))
     image = np.random.default_rng(0).random((48, 64, 3)).astype(np.float32)
@@ -410,6 +460,7 @@ def test_colmap_outputs_follow_the_camera_contract(fern_colmap):
     report = json.loads((fern_colmap / "report.json").read_text())
     assert report["attempts"][0]["settings"]["matcher"] == "sequential"
     assert report["source_cameras"][0]["model"] == "SIMPLE_RADIAL"
+    assert report["undistort_interpolation"] == "linear"
     assert (fern_colmap / "sparse" / "cameras.bin").exists()
     assert not (fern_colmap / "_colmap_work").exists()
 

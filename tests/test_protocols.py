@@ -219,6 +219,23 @@ def test_truth_goes_onto_the_undistorted_frame_and_open_water_stays_undefined():
     np.testing.assert_allclose(stored_image_on_frame(stored, frame, []), resized)
 
 
+def test_truth_is_resampled_as_the_training_images_were():
+    camera, warp, frame = _distorted_source_and_frame()
+    rng = np.random.default_rng(4)
+    stored = rng.random((HEIGHT, WIDTH, 3)).astype(np.float32)   # detail a kernel changes
+    for how in ("linear", "cubic"):
+        on_frame = stored_image_on_frame(stored, frame, [camera], how)
+        np.testing.assert_allclose(on_frame, warp.warp_image(stored, how), atol=1e-5)
+    # an undefined pixel leaves undefined every output pixel its kernel reaches
+    stored[36, 48] = np.nan
+    bump = np.ones((HEIGHT, WIDTH, 3), np.float32)
+    bump[36, 48] = 2.0
+    for how in ("linear", "cubic"):
+        reached = (np.abs(warp.warp_image(bump, how) - 1.0) > 1e-4).any(-1)
+        undefined = np.isnan(stored_image_on_frame(stored, frame, [camera], how)).any(-1)
+        assert 2 <= reached.sum() and (undefined == reached).all(), how
+
+
 # ------------------------------------------------------------ the step on an ingested dataset
 
 def _srgb_encode(linear):

@@ -8,6 +8,7 @@ import contextlib
 import copy
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -91,6 +92,10 @@ def camera_dict(camera: pycolmap.Camera) -> dict:
             "params": [float(p) for p in camera.params]}
 
 
+#: How the poses step resamples images onto the undistorted camera.
+Interpolation = Literal["linear", "cubic"]
+
+
 @dataclass
 class Undistortion:
     """A pinhole camera and the remap tables that warp a distorted image onto it.
@@ -108,16 +113,39 @@ class Undistortion:
     map_x: np.ndarray | None
     map_y: np.ndarray | None
 
-    def warp_image(self, image: np.ndarray) -> np.ndarray:
+    def warp_image(self, image: np.ndarray, interpolation: Interpolation = "linear"
+                   ) -> np.ndarray:
+        """The image on the pinhole camera.
+
+        ``cubic`` keeps the detail that bilinear resampling blurs at fractional source
+        positions (every pixel of a warp whose focal length or centre moves); its overshoot
+        at edges is clipped at 0, since these are linear radiances (docs/water.md, "The demo's
+        green and blue attenuation").
+        """
         if self.map_x is None:
             return image
-        return cv2.remap(image, self.map_x, self.map_y, interpolation=cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        if interpolation == "linear":
+            return cv2.remap(image, self.map_x, self.map_y, interpolation=cv2.INTER_LINEAR,
+                             borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        # the kernel reaches a pixel past the image at its edge: read the edge, not black
+        warped = cv2.remap(image, self.map_x, self.map_y, interpolation=cv2.INTER_CUBIC,
+                           borderMode=cv2.BORDER_REPLICATE)
+        return np.maximum(warped, 0)
 
-    def warp_mask(self, mask: np.ndarray) -> np.ndarray:
-        """Warp a boolean mask (nearest); pixels that come from outside the source are False."""
+    def warp_mask(self, mask: np.ndarray, interpolation: Interpolation = "linear"
+                  ) -> np.ndarray:
+        """Warp a boolean mask; pixels that come from outside the source are False. For
+        ``linear``, nearest; for ``cubic``, a pixel is True only where every source pixel its
+        4x4 kernel reads is (a clipped pixel's value spreads two pixels under that kernel)."""
         if self.map_x is None:
             return mask
+        if interpolation == "cubic":
+            inner = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8),
+                              borderType=cv2.BORDER_CONSTANT, borderValue=1)
+            warped = cv2.remap(inner.astype(np.float32), self.map_x, self.map_y,
+                               interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                               borderValue=0)
+            return warped >= 1.0 - 1e-6
         warped = cv2.remap(mask.astype(np.uint8), self.map_x, self.map_y,
                            interpolation=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
                            borderValue=0)

@@ -36,7 +36,8 @@ from seathru.io.atomic import write_json, write_text
 from seathru.io.cameras import CameraSet, read_cameras
 from seathru.io.images import read_image, read_mask
 from seathru.io.jsonfile import json_safe, read_json
-from seathru.io.stored_views import source_cameras, stored_image_on_frame
+from seathru.io.stored_views import (source_cameras, stored_image_on_frame,
+                                     undistort_interpolation)
 from seathru.io.water import WaterReport, read_truth_water
 from seathru.radiometry.linearise import resize_area
 
@@ -222,11 +223,15 @@ def truth_on_frames(cameras: CameraSet) -> Callable[[np.ndarray, str], np.ndarra
     """``(image, view) -> image`` that puts a simulator's truth image of ``view`` onto that
     frame's camera the way the poses step put the training images there
     (``stored_views.stored_image_on_frame``: the source camera's undistortion, then the frame's
-    size)."""
+    size). Colour images (three channels or more) are resampled as the training images were;
+    anything else (depth, coverage) bilinearly."""
     frames, candidates = {f.name: f for f in cameras.frames}, source_cameras(cameras)
+    colour_interpolation = undistort_interpolation(cameras)
 
     def on_frame(image: np.ndarray, view: str) -> np.ndarray:
-        return stored_image_on_frame(image, frames[view], candidates)
+        colour = image.ndim == 3 and image.shape[2] >= 3
+        return stored_image_on_frame(image, frames[view], candidates,
+                                     colour_interpolation if colour else "linear")
 
     return on_frame
 

@@ -20,7 +20,8 @@ from seathru.errors import PipelineError
 from seathru.geometry.poses import (complete_bounds, normalise_c2w, range_bounds,
                                     unit_ball_normalisation)
 from seathru.io.cameras import CameraSet, Frame, every_nth_split, write_cameras
-from seathru.io.colmap import Undistortion, camera_at_size, camera_dict, undistortion
+from seathru.io.colmap import (Interpolation, Undistortion, camera_at_size, camera_dict,
+                               undistortion)
 from seathru.io.dataset_readers import PosedDataset, PosedView
 from seathru.io.images import read_image, read_mask, write_float_tiff, write_mask
 from seathru.io.manifest import IngestFolder
@@ -51,7 +52,8 @@ def fill_bounds(views: list[PosedView], near: float | None, far: float | None,
             raise PipelineError(f"{view.name}: invalid bounds near={view.near}, far={view.far}")
 
 
-def _undistort(views: list[PosedView], ingest: IngestFolder, out: Path
+def _undistort(views: list[PosedView], ingest: IngestFolder, out: Path,
+               interpolation: Interpolation
                ) -> tuple[list[tuple[PosedView, Undistortion]], dict[tuple, Undistortion]]:
     """Write ``images/`` and ``masks/`` warped onto pinhole cameras; each view with its warp."""
     (out / "images").mkdir()
@@ -74,20 +76,22 @@ def _undistort(views: list[PosedView], ingest: IngestFolder, out: Path
             if mask.shape != (height, width):
                 mask = cv2.resize(mask.astype(np.uint8), (width, height),
                                   interpolation=cv2.INTER_NEAREST) > 0
-        write_float_tiff(out / "images" / f"{view.name}.tiff", warp.warp_image(image))
-        write_mask(out / "masks" / f"{view.name}.png", warp.warp_mask(mask))
+        write_float_tiff(out / "images" / f"{view.name}.tiff", warp.warp_image(image, interpolation))
+        write_mask(out / "masks" / f"{view.name}.png", warp.warp_mask(mask, interpolation))
         records.append((view, warp))
     return records, cache
 
 
 def write_pose_outputs(dataset: PosedDataset, ingest: IngestFolder, out: Path,
                        near: float | None = None, far: float | None = None,
-                       test_every: int = 8, where: str = "") -> OutputSummary:
+                       test_every: int = 8, where: str = "",
+                       interpolation: Interpolation = "linear") -> OutputSummary:
     """Undistort the linear images and masks, normalise, write ``cameras.json``.
 
     Views without a linear image, and linear images without a pose, are left out (with a
     warning). ``near`` / ``far`` override every frame's depth bounds (source units); ``where``
-    names the source in error messages.
+    names the source in error messages; ``interpolation`` resamples the images onto the
+    undistorted cameras (``Undistortion.warp_image``).
 
     Returns:
         the report's summary of what was written.
@@ -106,7 +110,7 @@ def write_pose_outputs(dataset: PosedDataset, ingest: IngestFolder, out: Path,
         raise PipelineError(f"none of the posed images has a linear image in "
                             f"{ingest.linear_dir}; do the names match?")
     fill_bounds(views, near, far, where)
-    records, cache = _undistort(views, ingest, out)
+    records, cache = _undistort(views, ingest, out, interpolation)
     c2w = np.array([view.c2w for view, _ in records])
     intrinsics = np.array([[[w.fx, 0, w.cx], [0, w.fy, w.cy], [0, 0, 1]] for _, w in records])
     sizes = np.array([[w.width, w.height] for _, w in records])
@@ -138,6 +142,7 @@ def write_pose_outputs(dataset: PosedDataset, ingest: IngestFolder, out: Path,
         "near": cameras.near, "far": cameras.far,
         "source_cameras": [json.loads(d) for d in sorted(distorted)],
         "undistorted": len(cache) > 0 and any(w.map_x is not None for w in cache.values()),
+        "undistort_interpolation": interpolation,
         "posed_without_linear_image": without_image,
         "linear_images_without_pose": without_pose,
     }

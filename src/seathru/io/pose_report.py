@@ -91,7 +91,12 @@ class NormalisationRecord(TypedDict):
     method: str
 
 
-class OutputSummary(TypedDict):
+class _OutputSummaryOptional(TypedDict, total=False):
+    # linear | cubic (seathru.io.colmap.Interpolation); reports written before it: linear
+    undistort_interpolation: str
+
+
+class OutputSummary(_OutputSummaryOptional):
     """What was written next to the report (cameras.json, images/, masks/)."""
 
     frames: int

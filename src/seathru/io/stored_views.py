@@ -29,7 +29,8 @@ import tifffile
 
 from seathru.errors import PipelineError
 from seathru.io.cameras import CameraSet, Frame
-from seathru.io.colmap import Undistortion, camera_at_size, make_camera, undistortion
+from seathru.io.colmap import (Interpolation, Undistortion, camera_at_size, make_camera,
+                               undistortion)
 from seathru.io.images import read_image
 from seathru.io.manifest import read_manifest
 from seathru.io.pose_report import read_pose_report
@@ -118,6 +119,15 @@ def read_stored_codes(view: StoredView) -> np.ndarray:
     if codes.ndim == 2:
         codes = np.repeat(codes[..., None], 3, axis=2)
     return orient(codes[..., :3], view.flip)
+
+
+def undistort_interpolation(cameras: CameraSet) -> Interpolation:
+    """How the poses step resampled the images onto these cameras (``report.json``; linear
+    for reports that predate the choice, and without a report)."""
+    report = (cameras.root or Path(".")) / "report.json"
+    if not report.is_file():
+        return "linear"
+    return read_pose_report(report).get("undistort_interpolation", "linear")
 
 
 def source_cameras(cameras: CameraSet) -> list[pycolmap.Camera]:
@@ -226,11 +236,13 @@ def stored_points_on_frame(points: np.ndarray, size: tuple[int, int], frame: Fra
                      warp.fy * rays[:, 1] + warp.cy], axis=1) * ratio
 
 
-def stored_image_on_frame(image: np.ndarray, frame: Frame, candidates: list[pycolmap.Camera]
-                          ) -> np.ndarray:
+def stored_image_on_frame(image: np.ndarray, frame: Frame, candidates: list[pycolmap.Camera],
+                          interpolation: Interpolation = "linear") -> np.ndarray:
     """An image in the stored images' geometry (a simulator's truth) mapped onto ``frame``'s
     camera the way the poses step mapped the training images: the source camera's
-    undistortion (bilinear), then an area resize to the frame's size.
+    undistortion (``interpolation``: :func:`undistort_interpolation` for colour images, linear
+    for fields such as depth, whose edges a cubic kernel would overshoot), then an area resize
+    to the frame's size.
 
     A resize alone misplaces pixels wherever the poses step undistorted: COLMAP's undistorted
     camera is a pixel or more smaller than the source, and the radial warp moves the corners
@@ -259,10 +271,12 @@ def stored_image_on_frame(image: np.ndarray, frame: Frame, candidates: list[pyco
     match = _frame_undistortion(size, frame, candidates) if candidates else None
     if match is not None and match[1].map_x is not None:
         warp = match[1]
-        values, weight = warp.warp_image(values), warp.warp_image(weight)
+        values = warp.warp_image(values, interpolation)
+        weight = warp.warp_image(weight, interpolation)
     target = (frame.width, frame.height)
     values, weight = resize_area(values, target), resize_area(weight, target)
-    covered = weight >= 1.0 - 1e-4
+    # a cubic kernel's outer taps weigh negative: missing ones push the weight above 1
+    covered = np.abs(weight - 1.0) <= 1e-4
     if values.ndim == 3:
         covered = covered[..., None]
     return np.where(covered, values, np.nan).astype(np.float32)

@@ -41,6 +41,7 @@ from seathru import settings
 from seathru.geometry.intrinsics import CameraModel, FocalPrior
 from seathru.geometry.quality import Mapper, Matcher, QualityGate, SfmSettings
 from seathru.io.atomic import atomic_dir
+from seathru.io.colmap import Interpolation
 from seathru.io.dataset_readers import READERS, read_posed_dataset
 from seathru.io.manifest import IngestFolder
 from seathru.io.pose_outputs import write_pose_outputs
@@ -67,6 +68,9 @@ class Settings:
         None, help="override every far bound: depth along the optical axis, source units "
                    "(cameras.json stores it as the range of the longest corner ray)")
     camera_model: CameraModel = setting("SIMPLE_RADIAL", help="COLMAP camera model")
+    undistort_interpolation: Interpolation = setting(
+        "linear", help="resampling onto the undistorted pinhole cameras: cubic keeps the detail "
+                       "(and the noise) bilinear smooths; see docs/water.md")
     camera_mode: Literal["single", "per-image"] = setting(
         "single", help="one camera shared by all images or one per image")
     matcher: Matcher = setting(
@@ -152,7 +156,8 @@ def run(args: argparse.Namespace) -> None:
                                          image_folder=folder)
             details = {"reader_notes": dataset.notes}
         summary = write_pose_outputs(dataset, ingest, out, cfg.near, cfg.far, cfg.test_every,
-                                     str(args.source_dir or ingest.root))
+                                     str(args.source_dir or ingest.root),
+                                     cfg.undistort_interpolation)
         given = {k: v for k, v in vars(args).items() if not k.startswith("_")}
         arguments = {k: str(v) if isinstance(v, Path) else v
                      for k, v in {**given, **settings.to_dict(cfg)}.items()}
