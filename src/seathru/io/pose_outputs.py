@@ -76,7 +76,8 @@ def _undistort(views: list[PosedView], ingest: IngestFolder, out: Path,
             if mask.shape != (height, width):
                 mask = cv2.resize(mask.astype(np.uint8), (width, height),
                                   interpolation=cv2.INTER_NEAREST) > 0
-        write_float_tiff(out / "images" / f"{view.name}.tiff", warp.warp_image(image, interpolation))
+        write_float_tiff(out / "images" / f"{view.name}.tiff",
+                         warp.warp_image(image, interpolation))
         write_mask(out / "masks" / f"{view.name}.png", warp.warp_mask(mask, interpolation))
         records.append((view, warp))
     return records, cache
