@@ -9,7 +9,8 @@ colmap_sim_tp (the same grouped by the true points), colmap_train (the training 
 over an image box W metres across at its range, "~W@S" also leaves out pixels whose box spans a
 relative range spread above S ("~W@-S": only that, colours unaveraged). Environment: DIRBIN=a
 groups by voxel and by viewing direction (cells of a in each component of the unit vector),
-NODARK=1 fits without the dark-pixel bound. c_med is in each geometry's units.
+NODARK=1 fits without the dark-pixel bound, BWFLOOR=f floors the brightness weights at f times
+the median (water_fit.brightness_weights). c_med is in each geometry's units.
 Prints errors against the true water, %, R G B."""
 import os
 import sys
@@ -19,6 +20,7 @@ from seathru.io.cameras import read_cameras
 from seathru.io.images import read_image
 from seathru.io.water import read_truth_water
 from seathru.io.evaluation import camera_centres, truth_on_frames
+from seathru.io.stored_views import source_cameras, stored_image_on_frame
 from seathru.eval import truth as truth_eval
 from seathru.nerf import water_fit
 from seathru.nerf.rays import frame_rays
@@ -32,6 +34,7 @@ ccams = read_cameras(f"{RUN}/poses/cameras.json")
 tw = read_truth_water(f"{truth_dir}/water.json").as_dict()
 mpu = truth_eval.camera_metric_scale(camera_centres(ccams), camera_centres(tcams, source_units=True), ccams.scale).scale
 on_frame = truth_on_frames(ccams)
+candidates = source_cameras(ccams)
 tframes = {f.name: f for f in tcams.frames}
 VOXEL_M = 0.054 * float(os.environ.get("VF", "1"))
 
@@ -65,7 +68,10 @@ def footprint_mean(img, rng_m, fx, width_m, spread=None):
         ty = (y - y0)[..., None]; tx = (x - x0)[..., None]
         return ((1 - ty) * ((1 - tx) * sat[y0, x0] + tx * sat[y0, x0 + 1])
                 + ty * ((1 - tx) * sat[y0 + 1, x0] + tx * sat[y0 + 1, x0 + 1]))
-    s = at(yy + half, xx + half) - at(yy - half, xx + half) - at(yy + half, xx - half) + at(yy - half, xx - half)
+    def box_sum():
+        return (at(yy + half, xx + half) - at(yy - half, xx + half) - at(yy + half, xx - half)
+                + at(yy - half, xx - half))
+    s = box_sum()
     out = s[..., :3] / np.maximum(s[..., 3:], 1e-9)
     out = np.where(valid[..., None], out, np.nan)
     if spread is not None:   # leave out pixels whose box spans more than `spread` in range
@@ -73,9 +79,9 @@ def footprint_mean(img, rng_m, fx, width_m, spread=None):
         fin = (np.isfinite(rng_m) & (rng_m > 0)).reshape(h, w)
         sat[:] = 0
         sat[1:, 1:, 0] = r.cumsum(0).cumsum(1); sat[1:, 1:, 1] = (r * r).cumsum(0).cumsum(1)
-        sat[1:, 1:, 2] = fin.cumsum(0).cumsum(1); sat[1:, 1:, 3] = 1.0
+        sat[1:, 1:, 2] = fin.cumsum(0).cumsum(1)
         sat[1:, 1:, 3] = np.ones((h, w)).cumsum(0).cumsum(1)
-        t = at(yy + half, xx + half) - at(yy - half, xx + half) - at(yy + half, xx - half) + at(yy - half, xx - half)
+        t = box_sum()
         m = t[..., 0] / np.maximum(t[..., 2], 1e-9); var = t[..., 1] / np.maximum(t[..., 2], 1e-9) - m * m
         bad = fin & ((t[..., 2] < t[..., 3] - 1e-6) | (np.sqrt(np.maximum(var, 0)) > spread * np.maximum(m, 1e-9)))
         out[bad] = np.nan
@@ -105,7 +111,9 @@ def view_data(name, variant):
             tdepth = tdepth[..., 0] if tdepth.ndim == 3 else tdepth
             pts = (to + td * torch.from_numpy(np.where(np.isfinite(tdepth), tdepth, np.nan).reshape(-1, 1).astype(np.float32)) * tcams.scale).numpy()
             pts = pts / tcams.scale    # metres (shifted)
-            wp = on_frame(pts.reshape(tf.height, tf.width, 3), name).reshape(-1, 3) / mpu
+            # points are not colours: bilinear whatever the poses step used for the images
+            wp = stored_image_on_frame(pts.reshape(tf.height, tf.width, 3), f, candidates,
+                                       "linear").reshape(-1, 3) / mpu
             rr = np.where(np.isfinite(depth) & (depth > 0), depth, np.inf).reshape(-1) / mpu
             o = torch.from_numpy(np.nan_to_num(wp - d.numpy() * np.where(np.isfinite(rr), rr, 0)[:, None]).astype(np.float32))
         if variant in ("colmap_sim", "colmap_sim_tp"):
@@ -135,10 +143,10 @@ for spec in VARIANTS:
             o, d, rgb, rng_, per_m = view_data(name, variant)
             if foot:
                 fr = tframes[name] if variant.startswith("truth") else next(x for x in ccams.frames if x.name == name)
+                plain = rgb
                 rgb = footprint_mean(rgb.reshape(fr.height, fr.width, 3), rng_ / per_m, fr.fx, float(foot), abs(float(spread)) if spread else None)
-                if spread.startswith("-"):
-                    keep_nan = ~np.isfinite(rgb).all(1)
-                    rgb = view_data(name, variant)[2].copy(); rgb[keep_nan] = np.nan
+                if spread.startswith("-"):   # only the selection: colours as they were
+                    rgb = np.where(np.isfinite(rgb).all(1, keepdims=True), plain, np.nan)
             good = np.isfinite(rgb).all(1) & ~np.isnan(rng_)
             if q:
                 c = local_contrast(rgb.reshape(*(TSHAPE if variant.startswith("truth") else SHAPE)[name], 3))
@@ -164,7 +172,8 @@ for spec in VARIANTS:
                                       point_ids=pids)
         fit = water_fit.fit_water(data.ranges, data.observed, data.ids, data.groups,
                                   {"sigma_attn": 0.2 / per_m, "sigma_bs": 0.2 / per_m, "c_med": 0.2},
-                                  dark=None if os.environ.get("NODARK") else data.dark)
+                                  dark=None if os.environ.get("NODARK") else data.dark,
+                                  brightness_floor=float(os.environ.get("BWFLOOR", "1")))
         err = {k: [100 * (float(v) * per_m / t - 1) for v, t in zip(getattr(fit, k), tw[k])]
                for k in ("sigma_attn", "sigma_bs", "c_med")}
         print(f"{spec:18s} seed {seed}: sa " + " ".join(f"{e:+5.1f}" for e in err["sigma_attn"])

@@ -94,6 +94,10 @@ def test_brightness_weights_count_groups_above_the_median_less_in_proportion():
         at_most = weights[~above, channel]
         assert torch.allclose(at_most, at_most.max().expand_as(at_most))   # dark groups alike
         assert bool((weights[above, channel] < at_most.max()).all())
+    # a lower floor: flat below that share of the median, in proportion above it
+    lowered = brightness_weights(clean, c_med, open_water_group=True, floor=0.3)
+    product = lowered * torch.maximum(level, 0.3 * median)
+    assert torch.allclose(product, product[0].expand_as(product))
 
 
 def test_a_balanced_fit_is_a_minimum_of_the_loss_it_weights():

@@ -375,9 +375,10 @@ def projected_loss(sigma_attn: Tensor, sigma_bs: Tensor, c_med: Tensor, ranges: 
                                  weights)[0] ** 2).mean()
 
 
-def brightness_weights(clean: Tensor, c_med: Tensor, open_water_group: bool) -> Tensor:
-    """(groups, 3) weights of each group's squared residuals: ``1 / max(J, median J)`` for a
-    group of clean colour ``J`` (the open-water group at ``c_med``), scaled to mean 1 per
+def brightness_weights(clean: Tensor, c_med: Tensor, open_water_group: bool,
+                       floor: float = 1.0) -> Tensor:
+    """(groups, 3) weights of each group's squared residuals: ``1 / max(J, floor median J)``
+    for a group of clean colour ``J`` (the open-water group at ``c_med``), scaled to mean 1 per
     channel. Groups brighter than the median count less, in proportion; the others alike.
 
     A group's pull on the attenuation is its residual times the model's slope in it, and the
@@ -394,6 +395,8 @@ def brightness_weights(clean: Tensor, c_med: Tensor, open_water_group: bool) -> 
         clean: (groups, 3) clean colour of each group (the open-water group last, if any).
         c_med: (3,) veiling light, the open-water group's level.
         open_water_group: whether the last group is open water.
+        floor: the share of the median below which the weight stays flat (0.3 and 0.5 were
+            tried on the demo: green and blue attenuation 1-2 points lower, docs/water.md).
 
     Returns:
         (groups, 3) weights, mean 1 per channel.
@@ -406,7 +409,7 @@ def brightness_weights(clean: Tensor, c_med: Tensor, open_water_group: bool) -> 
     level = clean.detach().clone()
     if open_water_group:
         level[-1] = c_med.detach()
-    level = torch.maximum(level, level.median(0).values.clamp_min(1e-6))
+    level = torch.maximum(level, floor * level.median(0).values.clamp_min(1e-6))
     weights = 1.0 / level
     return weights / weights.mean(0)
 
@@ -461,7 +464,7 @@ def dark_excess(sigma_bs: Tensor, c_med: Tensor, dark: tuple[Tensor, Tensor]) ->
 def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start: dict,
               steps: int = 300, colour_max: float = 1.5,
               dark: tuple[Tensor, Tensor] | None = None, dark_weight: float = 10.0,
-              balance_brightness: bool = True) -> WaterFit:
+              balance_brightness: bool = True, brightness_floor: float = 1.0) -> WaterFit:
     """Fit the 9 water parameters by L-BFGS on :func:`projected_loss`, in float64.
 
     Nine smooth parameters and a cheap exact loss: a quasi-Newton method with a line search
@@ -480,6 +483,7 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
         balance_brightness: weight each group by its inverse clean colour
             (:func:`brightness_weights`, taken at an unweighted fit and once more at the
             weighted one); False fits every pixel alike.
+        brightness_floor: :func:`brightness_weights`' ``floor``.
 
     Returns:
         the fitted water, its loss and the group weights it used.
@@ -493,7 +497,7 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
     free = _fit_water(ranges, observed, ids, groups, start, steps, colour_max)
     if balance_brightness:
         for _ in range(2):
-            weights = _weights_at(free, ranges, observed, ids, groups)
+            weights = _weights_at(free, ranges, observed, ids, groups, brightness_floor)
             free = _fit_water(ranges, observed, ids, groups, _values(free), steps, colour_max,
                               weights=weights)
     if dark is None:
@@ -509,11 +513,11 @@ def _values(fit: WaterFit) -> dict[str, list[float]]:
 
 
 def _weights_at(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tensor,
-                groups: int) -> Tensor:
+                groups: int, floor: float = 1.0) -> Tensor:
     """:func:`brightness_weights` of the clean colours at ``fit``."""
     theta = _theta(fit).to(ranges.device).split(3)
     clean = _projected_residuals(*theta, ranges.double(), observed.double(), ids, groups)[1]
-    return brightness_weights(clean, theta[2], bool((~torch.isfinite(ranges)).any()))
+    return brightness_weights(clean, theta[2], bool((~torch.isfinite(ranges)).any()), floor)
 
 
 def _fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start: dict,
