@@ -11,7 +11,7 @@ relative range spread above S ("~W@-S": only that, colours unaveraged). Environm
 groups by voxel and by viewing direction (cells of a in each component of the unit vector),
 NODARK=1 fits without the dark-pixel bound, BWFLOOR=f floors the brightness weights at f times
 the median (water_fit.brightness_weights). c_med is in each geometry's units.
-Prints errors against the true water, %, R G B."""
+Prints how far COLMAP's cameras are from the truth, then errors against the true water, %, R G B."""
 import os
 import sys
 import numpy as np, torch
@@ -37,6 +37,26 @@ on_frame = truth_on_frames(ccams)
 candidates = source_cameras(ccams)
 tframes = {f.name: f for f in tcams.frames}
 VOXEL_M = 0.054 * float(os.environ.get("VF", "1"))
+
+
+def camera_error() -> str:
+    """COLMAP's cameras against the simulator's: orientation after the best
+    common rotation, centres after a similarity alignment (metres), focal length."""
+    from seathru.geometry.poses import compare_trajectories, rotation_angle_deg
+    names = [f.name for f in ccams.frames]
+    est = np.array([f.c2w_array for f in ccams.frames])
+    ref = np.array([tframes[n].c2w_array for n in names])
+    u, _, vt = np.linalg.svd(sum(r[:3, :3] @ e[:3, :3].T for e, r in zip(est, ref)))
+    common = u @ np.diag([1, 1, np.linalg.det(u @ vt)]) @ vt
+    turn = rotation_angle_deg(common @ est[:, :3, :3], ref[:, :3, :3])
+    centres = compare_trajectories(est, ref).position_errors / tcams.scale
+    focal = ccams.frames[0].fx   # COLMAP's undistortion crops the frame, keeps the focal
+    return (f"cameras: orientation {np.median(turn):.3f} deg median ({turn.max():.3f} largest), "
+            f"centres {1000 * np.median(centres):.1f} mm median ({1000 * centres.max():.1f}), "
+            f"focal {100 * (focal / tframes[names[0]].fx - 1):+.2f}%")
+
+
+print(camera_error(), flush=True)
 
 def box(img):   # 2x2 box blend (what a half-pixel bilinear shift does)
     out = img.copy()
