@@ -121,22 +121,26 @@ def read_stored_codes(view: StoredView) -> np.ndarray:
     return orient(codes[..., :3], view.flip)
 
 
+def _pose_report(cameras: CameraSet) -> dict | None:
+    """The poses step's ``report.json`` beside the camera file, or None without one."""
+    report = (cameras.root or Path(".")) / "report.json"
+    return read_pose_report(report) if report.is_file() else None
+
+
 def undistort_interpolation(cameras: CameraSet) -> Interpolation:
     """How the poses step resampled the images onto these cameras (``report.json``; linear
     for reports that predate the choice, and without a report)."""
-    report = (cameras.root or Path(".")) / "report.json"
-    if not report.is_file():
-        return "linear"
-    return read_pose_report(report).get("undistort_interpolation", "linear")
+    report = _pose_report(cameras)
+    return "linear" if report is None else report.get("undistort_interpolation", "linear")
 
 
 def source_cameras(cameras: CameraSet) -> list[pycolmap.Camera]:
     """The poses step's source cameras (``report.json``), possibly distorted; [] without one."""
-    report = (cameras.root or Path(".")) / "report.json"
-    if not report.is_file():
+    report = _pose_report(cameras)
+    if report is None:
         return []
     return [make_camera(c["model"], c["width"], c["height"], c["params"])
-            for c in read_pose_report(report)["source_cameras"]]
+            for c in report["source_cameras"]]
 
 
 def _same_pinhole(frame: Frame, fx, fy, cx, cy, width, height) -> bool:
