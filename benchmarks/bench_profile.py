@@ -39,9 +39,11 @@ OUT = REPO / "benchmarks" / "results" / "profile.md"
 COMPONENTS = ("sample", "density", "colour", "render")
 
 
-def build(cameras_path: Path, preset: str, progress: float) -> Trainer:
+def build(cameras_path: Path, preset: str, progress: float,
+          overrides: dict | None = None) -> Trainer:
+    """A trainer for ``preset`` (and the nested ``overrides``) at the stage of ``progress``."""
     config = settings.from_mapping(TrainConfig, {"preset": preset, "max_minutes": 0,
-                                                 "progress": False})
+                                                 "progress": False, **(overrides or {})})
     seed_everything(0)
     cameras = read_cameras(cameras_path)
     train = cameras.split("train")

@@ -8,8 +8,9 @@ import torch
 
 from seathru import settings
 from seathru.io.cameras import CameraSet, Frame
-from seathru.nerf.capacity import (LEVELS, SceneMeasure, choose_capacity, expected_rays,
-                                   measure_scene, steps_for_passes)
+from seathru.nerf.capacity import (LEVELS, PLANE_FOOTPRINT_FACTOR, PLANE_LADDER, SceneMeasure,
+                                   choose_capacity, expected_rays, measure_scene,
+                                   planes_for_footprint, steps_for_passes)
 from seathru.nerf.config import TrainConfig
 from seathru.nerf.prepare import prepare_run
 
@@ -42,7 +43,9 @@ def test_a_large_budget_on_a_large_scene_takes_the_largest_level():
                                      _measure(2000, 10**6), "cpu")
     assert record["chosen"] == LEVELS[-1]
     quality = settings.from_mapping(TrainConfig, {"preset": "quality"})
-    assert config.field.plane_res == quality.field.plane_res
+    assert config.field.plane_res[0] == quality.field.plane_res[0]
+    assert config.field.plane_res[-1] == max(PLANE_LADDER) > quality.field.plane_res[-1]
+    assert config.field.density_res == quality.field.density_res
     assert config.sampler.samples_per_ray == quality.sampler.samples_per_ray
     assert config.preset == "auto"
 
@@ -65,6 +68,36 @@ def test_a_scene_smaller_than_the_planes_keeps_them_coarse():
     assert choose_capacity(budget, _measure(10, 10**5), "cpu")[1]["chosen"] == LEVELS[0]
 
 
+def test_colour_planes_follow_the_footprint_when_the_budget_fits_the_level():
+    fast = settings.from_mapping(TrainConfig, {"preset": "fast"}).field.plane_res
+    budget = _config(max_minutes=1.0)
+    pixels = int(expected_rays(budget, "fast", "cpu") / 3.5)   # fast fits, balanced does not
+    for footprint in (100.0, 300.0, 400.0, 676.0, 5000.0):
+        config, record = choose_capacity(budget, _measure(footprint, pixels), "cpu")
+        assert record["chosen"] == "fast" and record["levels"]["fast"]["fits_budget"]
+        planes = config.field.plane_res
+        usable = [p for p in PLANE_LADDER if p <= PLANE_FOOTPRINT_FACTOR * footprint]
+        assert planes[-1] == max(usable + [fast[-1]])
+        assert planes[0] == fast[0] and planes == sorted(planes)
+        assert all(new >= old for new, old in zip(planes, fast))
+        assert record["changed"]["field.plane_res"] == planes
+        assert "/".join(map(str, planes)) in record["reason"]
+
+
+def test_a_budget_that_does_not_fit_the_level_keeps_its_planes():
+    fast = settings.from_mapping(TrainConfig, {"preset": "fast"}).field.plane_res
+    config, record = choose_capacity(_config(max_minutes=1.0), _measure(5000.0, 10**8), "cpu")
+    assert not record["levels"]["fast"]["fits_budget"]
+    assert config.field.plane_res == fast
+
+
+def test_planes_for_footprint_keeps_what_is_already_fine_enough():
+    assert planes_for_footprint([96, 192, 256], 100.0) == [96, 192, 256]
+    assert planes_for_footprint([192, 384, 512], 500.0) == [192, 384, 512]
+    assert planes_for_footprint([96, 192, 256], 676.0) == [96, 256, 768]
+    assert planes_for_footprint([128, 256], 900.0) == [128, 768]   # two stages: no middle
+
+
 def test_explicit_settings_are_kept_and_named():
     config, record = choose_capacity(
         _config(max_minutes=0, steps=100000, sampler={"samples_per_ray": 20}),
@@ -72,6 +105,11 @@ def test_explicit_settings_are_kept_and_named():
     assert config.sampler.samples_per_ray == 20
     assert "sampler.samples_per_ray" in record["kept_explicit"]
     assert "sampler.samples_per_ray" not in record["changed"]
+    planes = [64, 128, 200]
+    config, record = choose_capacity(
+        _config(max_minutes=0, steps=100000, field={"plane_res": planes}),
+        _measure(2000, 10**6), "cpu")
+    assert config.field.plane_res == planes and "field.plane_res" in record["kept_explicit"]
 
 
 def test_named_presets_are_left_alone():

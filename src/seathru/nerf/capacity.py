@@ -12,9 +12,19 @@ smaller one would in the same time. ``auto`` therefore takes the largest of the 
    time on this kind of device, or the step limit, whichever is smaller) cover the training
    pixels at least ``MIN_PASSES`` times.
 
-The smallest level is taken when no level meets both. Only settings still at their defaults
-are changed: an explicit ``field.plane_res`` or ``sampler.samples_per_ray`` is kept. The choice
-and its evidence go to ``selection.json`` (``capacity``).
+The smallest level is taken when no level meets both.
+
+When the budget shows the data to the chosen level ``MIN_PASSES`` times, its colour planes
+then follow the scene: the finest is the largest of ``PLANE_LADDER`` within
+``PLANE_FOOTPRINT_FACTOR`` times the footprint resolution (surfaces nearer than the box centre
+have finer footprints than that median), never coarser than the level's own, and the middle
+stage lies halfway between the first and the finest on a log scale. Finer planes cost about
+1.3x the step time (their gradients and Adam's moments are dense); below that many passes
+they bought nothing (d3_reef at 0.8 passes).
+
+Only settings still at their defaults are changed: an explicit ``field.plane_res`` or
+``sampler.samples_per_ray`` is kept. The choice and its evidence go to ``selection.json``
+(``capacity``).
 """
 
 from __future__ import annotations
@@ -41,6 +51,12 @@ REFERENCE_BATCH = 1024
 # (2.4 passes) and quality (1.3 passes) on the held-out views, and reached balanced's final
 # PSNR in less than half the time: benchmarks/results/frontier.md.
 MIN_PASSES = 3.0
+# Finest colour planes by footprint. On the demo (footprint 676 cells, 3 min, 2 CPU threads)
+# 768 instead of 256 gained +0.9..+1.5 dB held-out and +0.2..+0.6 dB restored vs clean, two
+# runs each side by side, at 1.3-1.4x the step time; 512 lay between; on d3_reef (0.8 passes)
+# nothing: benchmarks/results/planes.md.
+PLANE_LADDER = (256, 384, 512, 768)
+PLANE_FOOTPRINT_FACTOR = 1.2
 
 
 @dataclass
@@ -131,9 +147,13 @@ def choose_capacity(config: TrainConfig, measure: SceneMeasure, device_type: str
                            "fits_scene": bool(fits_scene), "fits_budget": bool(fits_budget)}
         if fits_scene and fits_budget:
             chosen = level
-    changed = {k: v for k, v in _level_settings(chosen).items()
+    target = _level_settings(chosen)
+    if evidence[chosen]["fits_budget"]:
+        target["field.plane_res"] = planes_for_footprint(target["field.plane_res"],
+                                                         measure.footprint_res)
+    changed = {k: v for k, v in target.items()
                if current[k] == defaults[k] and v != current[k]}
-    kept = sorted(k for k, v in _level_settings(chosen).items()
+    kept = sorted(k for k, v in target.items()
                   if current[k] != defaults[k] and v != current[k])
     flat = {**current, **changed}
     new = settings.from_mapping(TrainConfig, {**settings.nest(flat), "preset": "auto"})
@@ -141,17 +161,45 @@ def choose_capacity(config: TrainConfig, measure: SceneMeasure, device_type: str
         "requested": "auto", "chosen": chosen, "changed": changed, "kept_explicit": kept,
         "scene": dataclasses.asdict(measure), "device_type": device_type,
         "min_passes": MIN_PASSES, "levels": evidence,
-        "reason": _reason(chosen, measure, evidence[chosen]),
+        "reason": _reason(chosen, measure, evidence[chosen],
+                          settings.nest(flat)["field"]["plane_res"]),
     }
     return new, record
 
 
-def _reason(level: str, measure: SceneMeasure, evidence: dict) -> str:
-    return (f"{level}: finest tri-plane {evidence['finest_plane']} cells for a scene of "
-            f"{measure.footprint_res:.0f} pixel footprints across; about "
-            f"{evidence['expected_passes']:.1f} passes over the {measure.train_pixels:,} "
-            f"training pixels in the budget (a larger level needs >= {MIN_PASSES:g} pass "
-            "and a scene it can resolve)")
+def planes_for_footprint(plane_res: list[int], footprint_res: float) -> list[int]:
+    """The per-stage plane resolutions with the finest raised to what the scene can use.
+
+    Args:
+        plane_res: a level's plane resolution per stage (first to finest).
+        footprint_res: :attr:`SceneMeasure.footprint_res`.
+
+    Returns:
+        ``plane_res`` with its finest entry the largest of ``PLANE_LADDER`` not above
+        ``PLANE_FOOTPRINT_FACTOR * footprint_res`` when that is finer, and a middle stage (if
+        any) at the geometric mean of the first and the finest (a multiple of 32), never
+        coarser than before; unchanged otherwise.
+
+    Example::
+
+        planes_for_footprint([96, 192, 256], 676.0)   # -> [96, 256, 768]
+    """
+    finest = max([p for p in PLANE_LADDER if p <= PLANE_FOOTPRINT_FACTOR * footprint_res],
+                 default=0)
+    if finest <= plane_res[-1]:
+        return list(plane_res)
+    planes = [*plane_res[:-1], finest]
+    if len(planes) == 3:
+        planes[1] = max(planes[1], 32 * round(math.sqrt(planes[0] * finest) / 32))
+    return planes
+
+
+def _reason(level: str, measure: SceneMeasure, evidence: dict, planes: list[int]) -> str:
+    return (f"{level}: about {evidence['expected_passes']:.1f} passes over the "
+            f"{measure.train_pixels:,} training pixels in the budget (a larger level needs "
+            f">= {MIN_PASSES:g} passes and a scene it can resolve); colour planes "
+            f"{'/'.join(map(str, planes))} for a scene of {measure.footprint_res:.0f} pixel "
+            "footprints across")
 
 
 def steps_for_passes(passes: float, train_pixels: int, batch_rays: int) -> int:
