@@ -26,7 +26,7 @@ from pathlib import Path
 import torch
 
 from bench_profile import profile
-from bench_sooner import read_row, seathru
+from bench_sooner import run_once, table_cells
 from machine import cpu_name, load_average
 
 REPO = Path(__file__).resolve().parents[1]
@@ -117,25 +117,10 @@ def main() -> None:
         args.work.mkdir(parents=True, exist_ok=True)
         for repeat in range(args.repeats):
             for arm, planes in arms.items():
-                name = f"{arm.replace('/', '-')}_{repeat}"
-                out = args.work / name
-                extra = ["--field.plane-res", *map(str, planes)] if planes else []
-                seathru(REPO / "src", ["train", "--cameras", str(cameras), "--out",
-                                       str(out / "train"), "--checkpoint-dir",
-                                       str(out / "checkpoints"), "--threads", str(args.threads),
-                                       "--max-minutes", str(args.train_minutes), *extra],
-                        out.with_suffix(".train.log"))
-                seathru(REPO / "src", ["render", "--model", str(out / "train" / "model.pt"),
-                                       "--cameras", str(cameras), "--out", str(out / "render"),
-                                       "--threads", str(args.threads), "--path-frames", "0"],
-                        out.with_suffix(".render.log"))
-                evaluate = ["evaluate", "--cameras", str(cameras), "--renders",
-                            str(out / "render"), "--train-dir", str(out / "train"), "--out",
-                            str(out / "evaluate"), "--threads", str(args.threads)]
-                if args.truth is not None:
-                    evaluate += ["--truth", str(args.truth)]
-                seathru(REPO / "src", evaluate, out.with_suffix(".evaluate.log"))
-                train_rows.append((arm, read_row(name, args.train_minutes, args.work)))
+                extra = ("--field.plane-res", *map(str, planes)) if planes else ()
+                train_rows.append((arm, run_once(f"{arm.replace('/', '-')}_{repeat}",
+                                                 REPO / "src", args.train_minutes, cameras,
+                                                 args.truth, args.work, args.threads, extra)))
 
     lines = ["# Colour planes by the footprint against the level's own (`benchmarks/"
              "bench_planes.py`)", "",
@@ -160,10 +145,7 @@ def main() -> None:
                   "simulator's truth (PSNR linear; water: signed error in %, R, G, B).", "",
                   "| arm | run | steps | held-out PSNR | restored vs clean | water |",
                   "|---|---|---|---|---|---|"]
-        for arm, row in train_rows:
-            restored = f"{row['restored']:.2f}" if row["restored"] is not None else "—"
-            lines.append(f"| {arm} | {row['run']} | {row['steps']} | {row['psnr']:.2f} | "
-                         f"{restored} | {row['water']} |")
+        lines += [f"| {arm} {table_cells(row)}" for arm, row in train_rows]
     args.out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -54,11 +54,13 @@ def seathru(source: Path, args: list[str], log: Path) -> None:
 
 
 def run_once(name: str, source: Path, minutes: float, cameras: Path, truth: Path | None,
-             work: Path, threads: int) -> dict:
+             work: Path, threads: int, train_args: tuple[str, ...] = ()) -> dict:
+    """Train (with ``train_args`` on top of the defaults), render and evaluate one run in
+    ``work/name``; its figures (:func:`read_row`)."""
     out = work / name
     seathru(source, ["train", "--cameras", str(cameras), "--out", str(out / "train"),
                      "--checkpoint-dir", str(out / "checkpoints"), "--threads", str(threads),
-                     "--max-minutes", str(minutes)], out.with_suffix(".train.log"))
+                     "--max-minutes", str(minutes), *train_args], out.with_suffix(".train.log"))
     seathru(source, ["render", "--model", str(out / "train" / "model.pt"), "--cameras",
                      str(cameras), "--out", str(out / "render"), "--threads", str(threads),
                      "--path-frames", "0"], out.with_suffix(".render.log"))
@@ -79,6 +81,12 @@ def water_errors(summary) -> str:
     return "; ".join(f"{key} " + ", ".join(f"{100 * (fitted / true - 1):+.0f}" for fitted, true
                                            in zip(water.fitted[key], water.truth[key]))
                      for key in ("sigma_attn", "sigma_bs", "c_med"))
+
+
+def table_cells(row: dict) -> str:
+    """``| run | steps | held-out PSNR | restored vs clean | water |`` of a :func:`read_row`."""
+    restored = "—" if row["restored"] is None else f"{row['restored']:.2f}"
+    return f"| {row['run']} | {row['steps']} | {row['psnr']:.2f} | {restored} | {row['water']} |"
 
 
 def read_row(name: str, minutes: float, work: Path) -> dict:

@@ -19,7 +19,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bench_sooner import REPO, run_once, seathru
+from bench_sooner import REPO, run_once, seathru, table_cells
 from machine import cpu_name, load_average
 
 ARMS = ("linear", "cubic")
@@ -68,10 +68,7 @@ def main() -> None:
              "R, G, B.", "",
              "| run | steps | held-out PSNR (dB) | restored vs clean (dB) | water |",
              "|---|---|---|---|---|"]
-    for row in rows:
-        restored = "—" if row["restored"] is None else f"{row['restored']:.2f}"
-        lines.append(f"| {row['run']} | {row['steps']} | {row['psnr']:.2f} | {restored} | "
-                     f"{row['water']} |")
+    lines += [table_cells(row) for row in rows]
     args.out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
