@@ -1,0 +1,71 @@
+"""Training settings against each other on one camera file, side by side.
+
+Each arm is a name and the ``seathru train`` flags it adds to the defaults; every arm is
+trained for the same budget, rendered and scored by the evaluate step (against the simulator's
+truth when given), the arms interleaved within each repeat, one run at a time. Usage::
+
+    python benchmarks/bench_train_args.py --cameras results/demo/poses/cameras.json \\
+        --truth results/demo/simulate/truth --arm default= \\
+        --arm far3="--sampler.far-factor 3" --repeats 2 --out benchmarks/results/far_factor.md
+
+``--summarise-only`` writes the table from the runs already in ``--work`` (``<arm>_<repeat>``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import time
+from pathlib import Path
+
+from bench_sooner import REPO, read_row, run_once, table_cells
+from machine import cpu_name, load_average
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cameras", type=Path, required=True, help="a poses step's cameras.json")
+    parser.add_argument("--truth", type=Path, default=None,
+                        help="the simulator's truth folder (results/<dataset>/simulate/truth)")
+    parser.add_argument("--arm", action="append", required=True,
+                        help='NAME=FLAGS, e.g. far3="--sampler.far-factor 3" (FLAGS may be empty)')
+    parser.add_argument("--minutes", type=float, default=3.0)
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--work", type=Path, default=Path("/tmp/bench_train_args"))
+    parser.add_argument("--summarise-only", action="store_true")
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args()
+    arms = {}
+    for arm in args.arm:
+        name, _, flags = arm.partition("=")
+        arms[name] = tuple(shlex.split(flags))
+    load_before = load_average()
+    rows = []
+    for repeat in range(args.repeats):
+        for name, flags in arms.items():
+            run = f"{name}_{repeat}"
+            if args.summarise_only:
+                row = read_row(run, args.minutes, args.work)
+            else:
+                args.work.mkdir(parents=True, exist_ok=True)
+                row = run_once(run, REPO / "src", args.minutes, args.cameras, args.truth,
+                               args.work, args.threads, flags)
+            rows.append((name, row))
+    lines = ["# Training settings side by side (`benchmarks/bench_train_args.py`)", "",
+             f"Device: {cpu_name()}, {args.threads} training threads; load average before/after "
+             f"{load_before} / {load_average()}; {time.strftime('%Y-%m-%d')}. Camera file "
+             f"`{args.cameras}`; {args.minutes:g} min of training a run, the arms interleaved "
+             "within each repeat, one run at a time; scored by the evaluate step (PSNR linear; "
+             "water: signed error against the truth, %, R, G, B).", "",
+             "Arms: " + "; ".join(f"`{name}`: `{' '.join(flags) or '(defaults)'}`"
+                                  for name, flags in arms.items()) + ".", "",
+             "| arm | run | steps | held-out PSNR (dB) | restored vs clean (dB) | water |",
+             "|---|---|---|---|---|---|"]
+    lines += [f"| {name} {table_cells(row)}" for name, row in rows]
+    args.out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
