@@ -68,8 +68,9 @@ class SamplerConfig:
         1.0, help="the object field is sampled up to this multiple of each camera's far bound "
                   "(cameras.json: from the sparse points the image sees, and far hazy seabed "
                   "has few of them; beyond it the water is integrated in closed form). 3 "
-                  "placed the demo's far seabed at its range (depth correlation 0.86 -> 0.94) "
-                  "but left 38% instead of 95% of d3_reef's open water empty: docs/water.md")
+                  "placed the demo's far seabed at its range and restored it 0.6-1.0 dB "
+                  "better, but left 37% instead of 100% of d3_reef's open water empty (its "
+                  "veiling light varies with direction): benchmarks/results/far_factor.md")
     samples_per_ray: int = setting(16, help="object samples per ray (occupancy sampler)")
     candidates_linear: int = setting(64, help="candidate bins linear in the scene box")
     candidates_disparity: int = setting(16, help="candidate bins linear in 1/t beyond the box")
