@@ -26,7 +26,7 @@ from pathlib import Path
 import torch
 
 from bench_profile import profile
-from bench_sooner import run_once, table_cells
+from bench_sooner import arm_table, run_once
 from machine import cpu_name, load_average
 
 REPO = Path(__file__).resolve().parents[1]
@@ -143,9 +143,7 @@ def main() -> None:
         lines += ["", f"## Training, {args.train_minutes:g} min each", "",
                   f"Scene `{args.cameras[0]}`; scored by the evaluate step against the "
                   "simulator's truth (PSNR linear; water: signed error in %, R, G, B).", "",
-                  "| arm | run | steps | held-out PSNR | restored vs clean | water |",
-                  "|---|---|---|---|---|---|"]
-        lines += [f"| {arm} {table_cells(row)}" for arm, row in train_rows]
+                  *arm_table(train_rows)]
     args.out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -89,6 +89,12 @@ def table_cells(row: dict) -> str:
     return f"| {row['run']} | {row['steps']} | {row['psnr']:.2f} | {restored} | {row['water']} |"
 
 
+def arm_table(rows: list[tuple[str, dict]]) -> list[str]:
+    """A markdown table of ``(arm, read_row(...))`` pairs, one line per run."""
+    return ["| arm | run | steps | held-out PSNR (dB) | restored vs clean (dB) | water |",
+            "|---|---|---|---|---|---|", *(f"| {arm} {table_cells(row)}" for arm, row in rows)]
+
+
 def read_row(name: str, minutes: float, work: Path) -> dict:
     """One run's figures from its evaluate step's ``summary.json``."""
     summary = read_summary(work / name / "evaluate" / "summary.json")

@@ -18,7 +18,7 @@ import shlex
 import time
 from pathlib import Path
 
-from bench_sooner import REPO, read_row, run_once, table_cells
+from bench_sooner import REPO, arm_table, read_row, run_once
 from machine import cpu_name, load_average
 
 
@@ -60,9 +60,7 @@ def main() -> None:
              "water: signed error against the truth, %, R, G, B).", "",
              "Arms: " + "; ".join(f"`{name}`: `{' '.join(flags) or '(defaults)'}`"
                                   for name, flags in arms.items()) + ".", "",
-             "| arm | run | steps | held-out PSNR (dB) | restored vs clean (dB) | water |",
-             "|---|---|---|---|---|---|"]
-    lines += [f"| {name} {table_cells(row)}" for name, row in rows]
+             *arm_table(rows)]
     args.out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
