@@ -25,7 +25,7 @@ from pathlib import Path
 
 import torch
 
-from bench_profile import profile
+from bench_profile import prepare_at_stage, profile
 from bench_sooner import arm_table, run_once
 from machine import cpu_name, load_average
 
@@ -33,10 +33,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "src"))
 
 from seathru import settings  # noqa: E402
-from seathru.io.cameras import read_cameras  # noqa: E402
-from seathru.io.training import read_frame_images  # noqa: E402
 from seathru.nerf.config import TrainConfig  # noqa: E402
-from seathru.nerf.prepare import prepare_run, seed_everything  # noqa: E402
 from seathru.nerf.training import Trainer  # noqa: E402
 
 OUT = REPO / "benchmarks" / "results" / "planes.md"
@@ -47,17 +44,8 @@ def build(cameras_path: Path, minutes: float, plane_res: list[int] | None, progr
     """The run ``auto`` prepares for ``minutes`` of training, optionally with explicit planes,
     at the stage of ``progress``; and its capacity record."""
     overrides = {"field": {"plane_res": plane_res}} if plane_res else {}
-    config = settings.from_mapping(TrainConfig, {"preset": "auto", "max_minutes": minutes,
-                                                 "progress": False, **overrides})
-    seed_everything(0)
-    cameras = read_cameras(cameras_path)
-    train = cameras.split("train")
-    prepared = prepare_run(config, cameras, train, *read_frame_images(cameras, train))
-    trainer = Trainer(prepared.model, prepared.data, None, device="cpu", frames=train)
-    trainer.step = int(progress * prepared.config.steps)
-    trainer._swap_parameters(prepared.model.set_stage(
-        prepared.model.stage_for_progress(progress)))
-    trainer.optimizer = trainer._build_optimizer()
+    trainer, prepared = prepare_at_stage(
+        cameras_path, {"preset": "auto", "max_minutes": minutes, **overrides}, progress)
     return trainer, prepared.capacity
 
 

@@ -39,22 +39,26 @@ OUT = REPO / "benchmarks" / "results" / "profile.md"
 COMPONENTS = ("sample", "density", "colour", "render")
 
 
-def build(cameras_path: Path, preset: str, progress: float,
-          overrides: dict | None = None) -> Trainer:
-    """A trainer for ``preset`` (and the nested ``overrides``) at the stage of ``progress``."""
-    config = settings.from_mapping(TrainConfig, {"preset": preset, "max_minutes": 0,
-                                                 "progress": False, **(overrides or {})})
+def prepare_at_stage(cameras_path: Path, mapping: dict, progress: float):
+    """The training run of ``mapping`` (TrainConfig settings) on a camera file, its trainer at
+    the stage of ``progress``: ``(trainer, prepared)``."""
+    config = settings.from_mapping(TrainConfig, {"progress": False, **mapping})
     seed_everything(0)
     cameras = read_cameras(cameras_path)
     train = cameras.split("train")
     prepared = prepare_run(config, cameras, train, *read_frame_images(cameras, train))
     trainer = Trainer(prepared.model, prepared.data, None, device="cpu", frames=train)
     # Train at the final stage's grids: the stage the run spends most steps in.
-    trainer.step = int(progress * config.steps)
+    trainer.step = int(progress * prepared.config.steps)
     trainer._swap_parameters(prepared.model.set_stage(
         prepared.model.stage_for_progress(progress)))
     trainer.optimizer = trainer._build_optimizer()
-    return trainer
+    return trainer, prepared
+
+
+def build(cameras_path: Path, preset: str, progress: float) -> Trainer:
+    """A trainer for ``preset`` at the stage of ``progress``."""
+    return prepare_at_stage(cameras_path, {"preset": preset, "max_minutes": 0}, progress)[0]
 
 
 def profile(trainer: Trainer, warmup: int, steps: int) -> dict[str, float]:
