@@ -87,13 +87,18 @@ def main() -> None:
         by_model = restore(water_image, depth, *fitted)
         rows.append((view, psnr(by_truth, clean, valid), psnr(by_model, clean, valid),
                      psnr(restored, clean, valid)))
+        opacity = read_render(root / "render", view, "opacity")
+        opacity = opacity[..., 0] if opacity.ndim == 3 else opacity
+        squared = ((restored - clean) ** 2).sum(-1)
+        total = float(squared[valid].sum())
         for low, high in BANDS:
             band = valid & (true_range >= low) & (true_range < high)
             if band.sum() < 50:
                 continue
             red = lambda image: float(image[..., 0][band].mean() / clean[..., 0][band].mean())  # noqa: E731
             bands.append((view, f"{low:g}-{high:g} m", float(band.mean()), red(restored),
-                          red(by_model), float(np.median(depth[band] / true_range[band]))))
+                          red(by_model), float(np.median(depth[band] / true_range[band])),
+                          float(squared[band].sum() / total), float(np.median(opacity[band]))))
 
     lines = [
         "# What the restored view's error is made of (`benchmarks/bench_restored_error.py`)", "",
@@ -106,12 +111,14 @@ def main() -> None:
         "| view | true range | model's depth | model's restored render |", "|---|---|---|---|",
         *(f"| {v} | {a:.2f} | {b:.2f} | {c:.2f} |" for v, a, b, c in rows), "",
         "Per range band (true range): share of the view's pixels, red of the restored render and "
-        "of the restoration by the model's depth against the clean red (ratio of means), and the "
-        "model's depth against the true range (median ratio).", "",
-        "| view | band | share | red, restored render | red, by the model's depth | depth ratio |",
-        "|---|---|---|---|---|---|",
-        *(f"| {v} | {b} | {s:.2f} | {r:.3f} | {m:.3f} | {d:.3f} |"
-          for v, b, s, r, m, d in bands), "",
+        "of the restoration by the model's depth against the clean red (ratio of means), the "
+        "model's depth against the true range (median ratio), the band's share of the view's "
+        "squared error of the restored render, and the render's object opacity (median).", "",
+        "| view | band | share | red, restored render | red, by the model's depth | depth ratio "
+        "| share of the restored error | opacity |",
+        "|---|---|---|---|---|---|---|---|",
+        *(f"| {v} | {b} | {s:.2f} | {r:.3f} | {m:.3f} | {d:.3f} | {e:.2f} | {o:.2f} |"
+          for v, b, s, r, m, d, e, o in bands), "",
         f"Machine: {cpu_name()}; {time.strftime('%Y-%m-%d')}.",
     ]
     args.out.write_text("\n".join(lines) + "\n")
