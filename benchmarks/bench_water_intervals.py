@@ -148,7 +148,7 @@ def model_surfaces(sim: Path, train: Path):
 def assess_model(sim: Path, train: Path) -> dict:
     """Curvature and robust intervals of one trained model's surface fit against the truth
     (normalised units)."""
-    from seathru.nerf.water_fit import fit_water, laplace_halfwidths, robust_halfwidths
+    from seathru.nerf.water_fit import fit_surfaces, laplace_halfwidths, robust_halfwidths
 
     data, model, truth, trained, scale = model_surfaces(sim, train)
     record = {"model": f"{sim.name}/{train.name}", "scale": scale, "truth": truth,
@@ -157,8 +157,9 @@ def assess_model(sim: Path, train: Path) -> dict:
         return {**record, "skipped": data}
     config = model.config
     dark = data.dark if config.medium.dark_pixel_bound else None
-    fit = fit_water(data.ranges, data.observed, data.ids, data.groups, trained,
-                    config.medium.refit_steps, model.medium.colour_max, dark)
+    fit, data = fit_surfaces(data, trained, config.medium.refit_steps, model.medium.colour_max,
+                             config.medium.dark_pixel_bound, config.medium.balance_brightness,
+                             config.medium.refit_trim)
     centre = {k: getattr(fit, k) for k in KEYS}
     started = time.perf_counter()
     robust = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,

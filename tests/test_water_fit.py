@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from seathru.nerf.water_fit import (WaterFit, brightness_weights, cluster_variances,
-                                     dark_pixels, far_surface_range, fit_water, group_scores,
+from seathru.nerf.water_fit import (SurfaceData, WaterFit, brightness_weights,
+                                     cluster_variances, dark_pixels, far_surface_range,
+                                     fit_surfaces, fit_water, group_scores,
                                      interval_determined, laplace_halfwidths, noise_allowance,
-                                     projected_loss, robust_halfwidths, surface_behind_open_water,
-                                     surface_data, voxel_groups)
+                                     projected_loss, residual_outliers, robust_halfwidths,
+                                     surface_behind_open_water, surface_data, voxel_groups)
 
 TRUE = {"sigma_attn": [0.55, 0.25, 0.20], "sigma_bs": [0.45, 0.30, 0.25],
         "c_med": [0.08, 0.20, 0.30]}
@@ -675,3 +676,61 @@ def test_pixels_of_one_surface_point_fit_the_water_closer_than_voxel_groups():
         errors[name] = np.abs(np.array(fit.sigma_attn) / truth - 1)
     assert errors["points"].max() < 0.05, errors
     assert errors["points"].mean() < errors["voxels"].mean(), errors
+
+
+def _misplaced(rng: np.random.Generator, share: float = 0.05, texture: float = 0.03,
+               noise: float = 0.002):
+    """Surfaces under TRUE water, with ``share`` of their pixels replaced by a surface only one
+    view sees, 0.5-1 m away and bright, that the model put onto the group behind it: its
+    pixel keeps the group's range. Each pixel differs from its group's colour by ``texture``
+    (relative) and ``noise`` (absolute). Returns the data and which pixels were misplaced."""
+    ranges, observed, ids, groups = _observations(rng, groups=300, per_group=12, near=1.5,
+                                                  far=10.0)
+    observed = observed * (1 + texture * torch.from_numpy(rng.standard_normal(observed.shape))) \
+        + noise * torch.from_numpy(rng.standard_normal(observed.shape))
+    misplaced = torch.from_numpy(rng.random(len(ranges)) < share)
+    true_range = torch.from_numpy(rng.uniform(0.5, 1.0, int(misplaced.sum())))
+    clean = torch.from_numpy(rng.uniform(0.5, 0.9, (int(misplaced.sum()), 3)))
+    attn, bs, c_med = (torch.tensor(TRUE[k], dtype=torch.float64)
+                       for k in ("sigma_attn", "sigma_bs", "c_med"))
+    observed = observed.clone()
+    observed[misplaced] = clean * torch.exp(-attn * true_range[:, None]) \
+        + c_med * (1 - torch.exp(-bs * true_range[:, None]))
+    return SurfaceData(ranges, observed, ids, groups), misplaced
+
+
+def _errors(fit) -> list[float]:
+    return [abs(v / t - 1) for k in ("sigma_attn", "sigma_bs") for v, t in
+            zip(getattr(fit, k), TRUE[k])]
+
+
+def test_residual_outliers_are_the_pixels_placed_at_the_wrong_range():
+    data, misplaced = _misplaced(np.random.default_rng(21))
+    fit = fit_water(data.ranges, data.observed, data.ids, data.groups, START)
+    outliers = residual_outliers(fit, data, 3.5)
+    assert float(outliers[misplaced].float().mean()) > 0.8
+    # bright textured pixels carry larger residuals: some of them go too, at little cost
+    assert float(outliers[~misplaced].float().mean()) < 0.15
+
+
+def test_a_trimmed_fit_recovers_the_water_that_misplaced_pixels_pull_away():
+    data, _ = _misplaced(np.random.default_rng(22))
+    plain, same = fit_surfaces(data, START, trim=0.0)
+    trimmed, used = fit_surfaces(data, START, trim=3.5)
+    assert same is data and len(used.ranges) < len(data.ranges)
+    assert max(_errors(plain)) > 0.1, _errors(plain)
+    assert max(_errors(trimmed)) < 0.05, _errors(trimmed)
+
+
+def test_trimming_leaves_clean_data_and_open_water_alone():
+    rng = np.random.default_rng(23)
+    ranges, observed, ids, groups = _observations(rng, groups=200, noise=1e-3)
+    data = SurfaceData(torch.cat([ranges, torch.full((50,), torch.inf, dtype=ranges.dtype)]),
+                       torch.cat([observed, torch.tensor(TRUE["c_med"]).double()
+                                  * (1 + 0.02 * torch.from_numpy(rng.standard_normal((50, 3))))]),
+                       torch.cat([ids, torch.full((50,), groups)]), groups + 1)
+    fit, used = fit_surfaces(data, START, trim=3.5)
+    assert int((~torch.isfinite(used.ranges)).sum()) == 50
+    assert len(used.ranges) > 0.95 * len(data.ranges)
+    assert int(used.ids.max()) + 1 == used.groups
+    assert max(_errors(fit)) < 0.05

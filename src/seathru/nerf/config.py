@@ -128,6 +128,12 @@ class MediumConfig:
                        "(points: a quarter of refit_rays find surface points, whose pixel in "
                        "every view that sees them is taken; closer on exact geometry, no "
                        "better on the demo, docs/water.md)")
+    refit_trim: float = setting(
+        3.5, help="refits and the final water assessment fit twice, the second time without "
+                  "surface pixels whose residual lies more than this many robust standard "
+                  "deviations from the median (surfaces placed at the wrong range: simulated "
+                  "surveys' green and blue attenuation 10-15 points high with them, "
+                  "docs/water.md); 0 = fit once on every pixel")
     refit_voxel: float = setting(0.005, help="refit: surface points are grouped in voxels of "
                                              "this share of the scene box diagonal (voxel "
                                              "grouping, and the intervals' regrouping)")

@@ -40,9 +40,9 @@ from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruc
 from seathru.nerf.model import SeaThruModel
 from seathru.nerf.rays import RayBatch, RayDataset
 from seathru.nerf.medium import DIRECTIONAL_MODES
-from seathru.nerf.water_fit import (SurfaceData, correspondence_rays, far_surface_range,
-                                    fit_water, interval_determined, laplace_halfwidths,
-                                    robust_halfwidths, surface_data)
+from seathru.nerf.water_fit import (SurfaceData, WaterFit, correspondence_rays,
+                                    far_surface_range, fit_surfaces, interval_determined,
+                                    laplace_halfwidths, robust_halfwidths, surface_data)
 
 CHECKPOINT_FORMAT = "seathru-train-checkpoint/1"
 WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
@@ -586,6 +586,14 @@ class Trainer:
                              below_horizon=below, point_ids=point_ids if i == 0 else None)
                 for i, factor in enumerate(voxel_factors)]
 
+    def _fit_surfaces(self, data: SurfaceData, start: dict) -> tuple[WaterFit, SurfaceData]:
+        """The water fitted to ``data`` from ``start`` with the medium's refit settings, and
+        the pixels it used (``water_fit.fit_surfaces``)."""
+        medium = self.config.medium
+        return fit_surfaces(data, start, medium.refit_steps, self.model.medium.colour_max,
+                            medium.dark_pixel_bound, medium.balance_brightness,
+                            medium.refit_trim)
+
     @torch.no_grad()
     def refit_water(self) -> dict:
         """Refit the global water to the training images on the model's own geometry.
@@ -605,10 +613,8 @@ class Trainer:
         if isinstance(data, str):
             return {**record, "skipped": data}
         before = model.water_parameters()
-        fit = fit_water(data.ranges, data.observed, data.ids, data.groups, before,
-                        self.config.medium.refit_steps, model.medium.colour_max,
-                        data.dark if self.config.medium.dark_pixel_bound else None,
-                        balance_brightness=self.config.medium.balance_brightness)
+        offered = len(data.ranges)
+        fit, data = self._fit_surfaces(data, before)
         spread = laplace_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups)
         accepted = refit_acceptance(fit, spread, before, model.medium.colour_max,
                                     self.config.medium.refit_max_relative)
@@ -620,7 +626,8 @@ class Trainer:
                                 after["c_med"] if model.medium.mode == "global" else None)
         for param in model.medium.global_parameters():
             self.optimizer.state.pop(param, None)
-        record.update({"pixels": fit.pixels, "groups": fit.groups, "seconds":
+        record.update({"pixels": fit.pixels, "left_out": offered - len(data.ranges),
+                       "groups": fit.groups, "seconds":
                        round(time.perf_counter() - started, 2),
                        "before": {k: before[k] for k in WATER_KEYS},
                        "fitted": {k: getattr(fit, k) for k in WATER_KEYS},
@@ -651,10 +658,8 @@ class Trainer:
             self.config.seed + 97, (1.0, *medium.interval_voxel_factors))
         if isinstance(data, str):
             return {"skipped": data}
-        fit = fit_water(data.ranges, data.observed, data.ids, data.groups,
-                        model.water_parameters(), medium.refit_steps, model.medium.colour_max,
-                        data.dark if medium.dark_pixel_bound else None,
-                        balance_brightness=medium.balance_brightness)
+        offered = len(data.ranges)
+        fit, data = self._fit_surfaces(data, model.water_parameters())
         beyond = far_surface_range(data.ranges) if data.open_water_below_horizon else None
         spread = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,
                                    colour_max=model.medium.colour_max,
@@ -668,7 +673,8 @@ class Trainer:
                 "halfwidth95": spread.halfwidth, "fit_determined": spread.determined,
                 "determined": interval_determined(trained or model.water_parameters(), fit,
                                                   spread.halfwidth),
-                "pixels": fit.pixels, "groups": fit.groups,
+                "pixels": fit.pixels, "left_out": offered - len(data.ranges),
+                "groups": fit.groups,
                 "effective_samples": spread.effective_samples,
                 **({"open_water_beyond": beyond} if beyond is not None else {})}
 
