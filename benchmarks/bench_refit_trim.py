@@ -71,9 +71,10 @@ def main() -> None:
                 print(rows[-1], flush=True)
     head = ["model", "trained (water.json)", "every pixel",
             *[f"without outliers at {t}" for t in trims]]
-    lines = [f"# {__doc__.splitlines()[0]} (`benchmarks/bench_refit_trim.py`)", "",
+    lines = [f"# {__doc__.splitlines()[0].rstrip('.')} (`benchmarks/bench_refit_trim.py`)", "",
              "Errors in % against the simulator's water: `sigma_attn` R, G, B / `sigma_bs` R, "
-             "G, B; in brackets the pixels left out of the surface pixels.", "",
+             "G, B; in brackets: the pixels offered (every pixel), and those left out "
+             "(without outliers).", "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
         if "skipped" in row:
