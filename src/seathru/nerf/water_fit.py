@@ -519,7 +519,7 @@ def residual_outliers(fit: WaterFit, data: SurfaceData, threshold: float) -> Ten
     What this removes is pixels placed at the wrong range: a surface only one training view
     sees, which the model puts onto the background other views see behind it, joins the
     background's voxel with a colour the background's range does not explain (on simulated
-    surveys 4-5% of the surface pixels; they raised green and blue attenuation by 10-15
+    surveys 3-4% of the surface pixels; they raised green and blue attenuation by 10-15
     points, ``docs/water.md``). Residuals relative to the predicted value were tried: they
     also drop the far, dark pixels whose noise is large against their value, and the red
     attenuation rose.
