@@ -571,6 +571,13 @@ def fit_surfaces(data: SurfaceData, start: dict, steps: int = 300, colour_max: f
     """:func:`fit_water` on ``data``; with ``trim`` > 0, fitted again without the
     :func:`residual_outliers` at ``trim`` robust standard deviations, from the first fit.
 
+    Args:
+        data: surface pixels (``surface_data``): (N,) ranges, (N, 3) pixels, (N,) groups.
+        start: start values, as :func:`fit_water`'s; steps, colour_max: :func:`fit_water`'s.
+        dark_bound: use ``data.dark`` (the dark-pixel bound); balance_brightness: see
+            :func:`fit_water`.
+        trim: robust standard deviations beyond which a pixel is left out; 0 fits once.
+
     Returns:
         the fit and the data it was made on (``data`` itself when nothing was trimmed).
 
