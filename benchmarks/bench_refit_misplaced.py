@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from machine import cpu_name, load_average
+from machine import footer, load_average
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "src"))
@@ -47,22 +47,15 @@ def _median_depth(model, frame, origins, directions, chunk: int = 8192):
 
 def measure(train: Path, trim: float) -> dict:
     from bench_water import _truth_range
+    from bench_water_intervals import trained_dive
     from seathru.eval.truth import training_view_coverage
-    from seathru.io.cameras import read_cameras
-    from seathru.io.model import load_model
-    from seathru.io.training import read_frame_images
     from seathru.io.water import read_truth_water, read_water
-    from seathru.nerf.prepare import open_water_in_view
     from seathru.nerf.rays import frame_rays
     from seathru.nerf.water_fit import fit_surfaces, surface_data
 
     sim = train.parent
-    model = load_model(train / "model.pt")
+    model, cameras, frames, images, _, water_masks, in_view = trained_dive(sim, train)
     config = model.config
-    cameras = read_cameras(sim / "truth" / "cameras.json")
-    frames = cameras.split("train")
-    images, masks = read_frame_images(cameras, frames)
-    water_masks, _, in_view = open_water_in_view(config, images, masks)
     ranges = [_truth_range(sim, f, cameras.scale) for f in frames]
     columns = {k: [] for k in ("origins", "directions", "rgb", "depth", "opacity", "truth",
                                "water", "views")}
@@ -145,8 +138,7 @@ def main() -> None:
             if row["near long median"] else "-",
             row["model depth"], row["true range"], row["without single-view"],
             row["without outliers"]]) + " |")
-    lines += ["", f"Machine: {cpu_name()}; load {load}; {time.strftime('%Y-%m-%d')}; "
-              f"{(time.time() - started) / 60:.0f} min.", ""]
+    lines += ["", footer(load, started), ""]
     args.out.write_text("\n".join(lines))
     print(args.out)
 

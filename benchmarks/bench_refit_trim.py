@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from machine import cpu_name, load_average
+from machine import footer, load_average
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "src"))
@@ -83,8 +83,7 @@ def main() -> None:
         cells = [row["model"], row["trained"], f"{row[0.0]} ({row['pixels']} pixels)",
                  *[f"{row[t]} ({row[f'{t} left out']})" for t in trims]]
         lines.append("| " + " | ".join(cells) + " |")
-    lines += ["", f"Machine: {cpu_name()}; load {load}; {time.strftime('%Y-%m-%d')}; "
-              f"{(time.time() - started) / 60:.0f} min.", ""]
+    lines += ["", footer(load, started), ""]
     args.out.write_text("\n".join(lines))
     print(args.out)
 

@@ -104,26 +104,34 @@ def synthetic_check(seeds: int) -> list[dict]:
     return rows
 
 
+def trained_dive(sim: Path, train: Path):
+    """A trained model of a simulated dive with its training views as training reads them:
+    (model, cameras, training frames, images, masks, open-water masks, open water in view)."""
+    from seathru.io.cameras import read_cameras
+    from seathru.io.model import load_model
+    from seathru.io.training import read_frame_images
+    from seathru.nerf.prepare import open_water_in_view
+
+    model = load_model(train / "model.pt")
+    cameras = read_cameras(sim / "truth" / "cameras.json")
+    frames = cameras.split("train")
+    images, masks = read_frame_images(cameras, frames)
+    water_masks, _, in_view = open_water_in_view(model.config, images, masks)
+    return model, cameras, frames, images, masks, water_masks, in_view
+
+
 def model_surfaces(sim: Path, train: Path):
     """The surface data of a trained model as its final water assessment builds it (all
     training rays, not less the medium-selection hold-out; open water from the photographs
     where in view), its model and the truth (in
     normalised units). Returns (data or reason, model, truth, trained water, scale)."""
-    from seathru.io.cameras import read_cameras
-    from seathru.io.model import load_model
-    from seathru.io.training import read_frame_images
     from seathru.io.water import read_truth_water, read_water
-    from seathru.nerf.prepare import open_water_in_view
     from seathru.nerf.rays import RayDataset
     from seathru.nerf.training import refit_open_water_opacity
     from seathru.nerf.water_fit import surface_data
 
-    model = load_model(train / "model.pt")
+    model, cameras, frames, images, masks, water_masks, in_view = trained_dive(sim, train)
     config = model.config
-    cameras = read_cameras(sim / "truth" / "cameras.json")
-    frames = cameras.split("train")
-    images, masks = read_frame_images(cameras, frames)
-    water_masks, _, in_view = open_water_in_view(config, images, masks)
     rays = RayDataset(frames, images, masks, open_water=water_masks if in_view else None
                       ).fixed_subset(config.medium.refit_rays, config.seed + 97)
     depth, opacity = [], []

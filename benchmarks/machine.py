@@ -21,3 +21,11 @@ def load_average() -> str:
         return " ".join(Path("/proc/loadavg").read_text().split()[:3])
     except OSError:
         return "n/a"
+
+
+def footer(load: str, started: float) -> str:
+    """The last line of a result file: machine, load before the run, date, minutes taken."""
+    import time
+
+    return (f"Machine: {cpu_name()}; load {load}; {time.strftime('%Y-%m-%d')}; "
+            f"{(time.time() - started) / 60:.0f} min.")
