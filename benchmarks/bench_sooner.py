@@ -32,6 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "src"))
 
 from seathru.io.evaluation import read_summary  # noqa: E402
+from seathru.io.water import read_water  # noqa: E402
 
 OUT = REPO / "benchmarks" / "results" / "sooner.md"
 BASELINE = "c9edca9"
@@ -83,16 +84,36 @@ def water_errors(summary) -> str:
                      for key in ("sigma_attn", "sigma_bs", "c_med"))
 
 
+def final_fit_errors(summary, water_path: Path) -> str:
+    """Signed error of the final assessment's own attenuation fit (water.json's
+    ``uncertainty.surface_fit``, on the trained model's final surfaces) against the truth, in %:
+    where it differs from the trained value, the water was held from geometry that changed."""
+    water = summary.truth.water if summary.truth else None
+    if water is None or not water.fitted or not water_path.is_file():
+        return "—"
+    report = read_water(water_path)
+    if not report.uncertainty:
+        return "—"
+    fit = report.uncertainty["surface_fit"]
+    trained = report.normalised.sigma_attn
+    return ", ".join(f"{100 * (fitted / true * final / held - 1):+.0f}" for fitted, true, final, held
+                     in zip(water.fitted["sigma_attn"], water.truth["sigma_attn"],
+                            fit["sigma_attn"], trained))
+
+
 def table_cells(row: dict) -> str:
-    """``| run | steps | held-out PSNR | restored vs clean | water |`` of a :func:`read_row`."""
+    """``| run | steps | held-out PSNR | restored vs clean | water | final fit |`` of a
+    :func:`read_row`."""
     restored = "—" if row["restored"] is None else f"{row['restored']:.2f}"
-    return f"| {row['run']} | {row['steps']} | {row['psnr']:.2f} | {restored} | {row['water']} |"
+    return (f"| {row['run']} | {row['steps']} | {row['psnr']:.2f} | {restored} | {row['water']} "
+            f"| {row.get('final_fit', '—')} |")
 
 
 def arm_table(rows: list[tuple[str, dict]]) -> list[str]:
     """A markdown table of ``(arm, read_row(...))`` pairs, one line per run."""
-    return ["| arm | run | steps | held-out PSNR (dB) | restored vs clean (dB) | water |",
-            "|---|---|---|---|---|---|", *(f"| {arm} {table_cells(row)}" for arm, row in rows)]
+    return ["| arm | run | steps | held-out PSNR (dB) | restored vs clean (dB) | water | "
+            "sigma_attn by the final surfaces |",
+            "|---|---|---|---|---|---|---|", *(f"| {arm} {table_cells(row)}" for arm, row in rows)]
 
 
 def read_row(name: str, minutes: float, work: Path) -> dict:
@@ -104,7 +125,8 @@ def read_row(name: str, minutes: float, work: Path) -> dict:
            "training_s": training.time_s if training else None,
            "psnr": summary.means["psnr_linear"],
            "restored": summary.means.get("restored_psnr_linear"),
-           "water": water_errors(summary)}
+           "water": water_errors(summary),
+           "final_fit": final_fit_errors(summary, work / name / "train" / "water.json")}
     print(row, flush=True)
     return row
 
