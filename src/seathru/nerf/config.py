@@ -109,7 +109,7 @@ class MediumConfig:
                                                   "of the smoothest image regions (open water, "
                                                   "far haze) instead of the mean image colour")
     refit_at: list[float] = setting(
-        default_factory=lambda: [0.15, 0.4, 0.7],
+        default_factory=lambda: [0.15, 0.4, 0.7, 0.9],
         help="training progress at which the water is refitted to the images on the model's "
              "own depth (variable projection); empty = never")
     hold_refitted: bool = setting(
