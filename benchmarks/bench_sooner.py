@@ -101,6 +101,10 @@ def final_fit_errors(summary, water_path: Path) -> str:
                             fit["sigma_attn"], trained))
 
 
+ROW_HEADER = ("| run | steps | held-out PSNR (dB) | restored vs clean (dB) | water | "
+              "sigma_attn by the final surfaces |")
+
+
 def table_cells(row: dict) -> str:
     """``| run | steps | held-out PSNR | restored vs clean | water | final fit |`` of a
     :func:`read_row`."""
@@ -111,9 +115,7 @@ def table_cells(row: dict) -> str:
 
 def arm_table(rows: list[tuple[str, dict]]) -> list[str]:
     """A markdown table of ``(arm, read_row(...))`` pairs, one line per run."""
-    return ["| arm | run | steps | held-out PSNR (dB) | restored vs clean (dB) | water | "
-            "sigma_attn by the final surfaces |",
-            "|---|---|---|---|---|---|---|", *(f"| {arm} {table_cells(row)}" for arm, row in rows)]
+    return ["| arm " + ROW_HEADER, "|---" * 7 + "|", *(f"| {arm} {table_cells(row)}" for arm, row in rows)]
 
 
 def read_row(name: str, minutes: float, work: Path) -> dict:

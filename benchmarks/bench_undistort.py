@@ -19,7 +19,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bench_sooner import REPO, run_once, seathru, table_cells
+from bench_sooner import REPO, ROW_HEADER, run_once, seathru, table_cells
 from machine import cpu_name, load_average
 
 ARMS = ("linear", "cubic")
@@ -66,8 +66,7 @@ def main() -> None:
              f"model undistorted both ways; {args.minutes:g} min of training a run, the arms "
              "interleaved, one run at a time. Water: signed error against the truth, %, "
              "R, G, B.", "",
-             "| run | steps | held-out PSNR (dB) | restored vs clean (dB) | water |",
-             "|---|---|---|---|---|"]
+             ROW_HEADER, "|---" * 6 + "|"]
     lines += [table_cells(row) for row in rows]
     args.out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
