@@ -130,6 +130,18 @@ def _percentages(values) -> str:
     return ", ".join(_fmt(v, 0, 100) + "%" for v in values) if values else "—"
 
 
+def _photographs(tracks: dict | None) -> str:
+    """The restored photographs' slope reduction: all tracks per channel and overall, nearest
+    90% and farthest 10% overall; a dash where the evaluate step did not measure it."""
+    parts = [((tracks or {}).get(name) or {}).get("photographs") or {}
+             for name in ("all_views", "near_tracks", "far_tracks")]
+    if not parts[0]:
+        return "—"
+    overall = [_fmt(p.get("reduction_overall"), 0, 100) + "%" for p in parts]
+    return (f"{_percentages(parts[0].get('reduction'))} ({overall[0]}) / {overall[1]} / "
+            f"{overall[2]}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("/tmp/bench_frontier"))
@@ -155,11 +167,17 @@ def main() -> None:
              "(in brackets) pooled over the channels whose input slope is twice its standard "
              "error, as the report judges it: a model that "
              "does not follow the input's slope takes it out of the restored render whether or "
-             "not it removed the water.", "",
+             "not it removed the water. Restored photographs: the render step's "
+             "`photos/<view>.tiff` (the photographs with the water taken out through the model, "
+             "`seathru.radiometry.restore`) against the input, both averaged over a window 2% "
+             "of the image width across around each observation (`evaluate/summary.json`): "
+             "reduction over all tracks (R, G, B; overall) / nearest 90% / farthest 10% "
+             "(overall).", "",
              "| run | capacity | medium | open water (% of pixels) | of it empty (%) | "
              "held-out PSNR (dB) | track slope input (R, G, B) | restored | reduction | fog (%) | "
-             "reduction, nearest 90% / farthest 10% of tracks | followed by the full render |",
-             "|---" * 12 + "|"]
+             "reduction, nearest 90% / farthest 10% of tracks | followed by the full render | "
+             "restored photographs: reduction |",
+             "|---" * 13 + "|"]
     for row in rows:
         tracks = (row["tracks"] or {}).get("all_views") or {}
         input_slope, restored_slope = (
@@ -172,7 +190,8 @@ def main() -> None:
             f"{_percentages(tracks.get('reduction'))} | "
             f"{_fmt(row['fog_all'], 1, 100)} / {_fmt(row['fog_far'], 1, 100)} | "
             f"{_percentages(row['reduction_near'])} / {_percentages(row['reduction_far'])} | "
-            f"{_percentages(row['reproduced'])} ({_fmt(row['followed'], 0, 100)}%) |")
+            f"{_percentages(row['reproduced'])} ({_fmt(row['followed'], 0, 100)}%) | "
+            f"{_photographs(row['tracks'])} |")
     lines += ["", "Evidence of water per run (selection.json):", ""]
     lines += [f"- {row['run']}: {'; '.join(row['evidence']) or 'none'}" for row in rows]
     args.out.write_text("\n".join(lines) + "\n")

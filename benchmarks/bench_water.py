@@ -13,7 +13,11 @@ determined; restored-vs-clean PSNR (linear) on the held-out views, beside the fu
 Beside water.json's intervals, the robust ones (``water_fit.robust_halfwidths``) recomputed on
 the final model's surfaces with the function's defaults (``bench_water_intervals.assess_model``:
 without the train step's allowances for range error, grouping and the 1% floor), around the
-trained value widened by its distance to that surface fit.
+trained value widened by its distance to that surface fit. The held-out photographs restored
+through the model's render (``seathru.radiometry.restore``, the render step's default gain) are
+scored beside the restored render: the photograph is the truth with water taken through the
+simulator's sensor again (Poisson-Gaussian noise at the view's exposure, RGGB mosaic, bilinear
+demosaicing, back to radiance), as noisy as the dive's raw files.
 
     python benchmarks/bench_water.py [--views 16 --width 160 --height 120] [--minutes 3]
         [--waters default,turbid,...] [--paths orbit,transect,survey] [--jobs 2]
@@ -50,7 +54,9 @@ KEYS = ("sigma_attn", "sigma_bs", "c_med")
 # left out; "covered": the pixels two or more training views see)
 SCORES = {"restored_psnr": "restored_psnr_linear", "full_psnr": "full_vs_clean_psnr_linear",
           "restored_psnr_covered": "restored_psnr_linear_covered",
-          "covered_share": "covered_share"}
+          "covered_share": "covered_share",
+          "photo_psnr": "photo_restored_psnr_linear",
+          "photo_psnr_covered": "photo_restored_psnr_linear_covered"}
 VARIANTS = {"cues": [], "no cues": ["--medium.refit-at", "--no-medium.veiling-light-init"]}
 
 
@@ -91,6 +97,7 @@ def measure(sim: Path, out: Path) -> dict:
     from seathru.io.model import load_model
     from seathru.io.water import read_truth_water, read_water
     from seathru.nerf.inference import render_frame
+    from seathru.radiometry.restore import restore_photograph
 
     torch.set_num_threads(1)
     truth = read_truth_water(sim / "truth" / "water.json").as_dict()
@@ -106,13 +113,15 @@ def measure(sim: Path, out: Path) -> dict:
         rendered = render_frame(model, frame)
         view_range = _truth_range(sim, frame, cameras.scale)
         covered = training_view_coverage(frame, view_range, training) >= 2
+        water = read_image(sim / "truth" / "water" / f"{frame.name}.tiff")
         scores.append(view_truth_metrics(
             full=rendered["rgb"], restored=rendered["restored"], depth=rendered["depth"],
             clean=read_image(sim / "truth" / "clean" / f"{frame.name}.tiff"),
-            water=read_image(sim / "truth" / "water" / f"{frame.name}.tiff"),
+            water=water,
             truth_depth=np.where(np.isfinite(view_range) & (view_range > 0),
                                  view_range / cameras.scale, np.inf),
-            gain=np.ones(3), metres_per_unit=1.0 / cameras.scale, covered=covered))
+            gain=np.ones(3), metres_per_unit=1.0 / cameras.scale, covered=covered,
+            restored_photo=restore_photograph(sensor_photo(sim, frame.name, water), rendered)))
     selection = json.loads((out / "selection.json").read_text())
     from bench_water_intervals import assess_model
 
@@ -133,6 +142,27 @@ def measure(sim: Path, out: Path) -> dict:
     return {"medium": selection.get("final_mode"), "params": params,
             **{key: float(np.nanmean([score[column] for score in scores]))
                for key, column in SCORES.items()}}
+
+
+def sensor_photo(sim: Path, name: str, water: np.ndarray, seed: int = 0) -> np.ndarray:
+    """The view's image with water as the simulator's sensor records it, in radiance units:
+    Poisson-Gaussian noise at the view's exposure (truth/sensor.json), RGGB mosaic, bilinear
+    demosaicing, black level removed, divided by the exposure's DN per unit radiance."""
+    from dataclasses import fields
+
+    from seathru.sim import sensor
+
+    info = json.loads((sim / "truth" / "sensor.json").read_text())
+    config = sensor.SensorConfig(**{f.name: info[f.name] for f in fields(sensor.SensorConfig)})
+    view = info["images"][name]
+    exposure = sensor.Exposure(view["exposure_time_s"], view["iso"], view["f_number"],
+                               view["ev_offset"])
+    signal = sensor.expected_signal(water, exposure, info["dn_per_unit"])
+    rng = np.random.default_rng([seed, int(name.rsplit("_", 1)[-1])])
+    raw = sensor.capture_raw(sensor.mosaic_rggb(signal), exposure.iso, config, rng)
+    value = sensor.demosaic_bilinear(raw).astype(np.float64) - config.black_level
+    per_unit = exposure.exposure_time_s * exposure.iso / 100.0 * info["dn_per_unit"]
+    return (value / per_unit).astype(np.float32)
 
 
 def _truth_range(sim: Path, frame, scale: float) -> np.ndarray:
@@ -233,7 +263,16 @@ def _summary(rows: list[dict], variant: str) -> str:
             f"the parameters more than 5% off, {flagged}/{len(off)} are flagged as not "
             f"determined by water.json, {robust_flagged}/{len(robust_off)} by the robust "
             f"intervals; restored vs clean "
-            f"{np.median(restored):.1f} dB median ({min(restored):.1f}-{max(restored):.1f}).")
+            f"{np.median(restored):.1f} dB median ({min(restored):.1f}-{max(restored):.1f})"
+            + _photo_summary([r for r in rows if r["variant"] == variant]) + ".")
+
+
+def _photo_summary(rows: list[dict]) -> str:
+    photo = [r["photo_psnr"] for r in rows if np.isfinite(r.get("photo_psnr", np.nan))]
+    if not photo:
+        return ""
+    return (f", the photographs restored through the model {np.median(photo):.1f} dB median "
+            f"({min(photo):.1f}-{max(photo):.1f})")
 
 
 def _by_path(rows: list[dict], variant: str) -> list[str]:
@@ -252,10 +291,14 @@ def _by_path(rows: list[dict], variant: str) -> list[str]:
                            f"({100 * np.median(errors):+.0f}%)")
         restored = [r.get("restored_psnr_covered", np.nan) for r in rows
                      if r["variant"] == variant and r["path"] == path]
+        photo = [r.get("photo_psnr_covered", np.nan) for r in rows
+                 if r["variant"] == variant and r["path"] == path]
         lines.append(f"  - {path}: {close}/{len(params)} within 5%; median error (signed): "
                      + ", ".join(medians)
                      + f"; restored vs clean on covered pixels {np.nanmedian(restored):.1f} dB "
-                       "median")
+                       "median"
+                     + (f", restored photographs {np.nanmedian(photo):.1f} dB"
+                        if np.isfinite(photo).any() else ""))
     return lines
 
 
@@ -269,15 +312,18 @@ def write_results(rows: list[dict], args, seconds: float, machine: str | None = 
              "defaults (no allowance for range error, grouping or the 1% floor), around "
              "the trained value widened by its distance to that fit. Restored and full render "
              "against the clean truth as the evaluate step scores them: open water left out; "
-             "covered: only the pixels two or more training views see."
+             "covered: only the pixels two or more training views see. Photograph restored: the "
+             "held-out photograph (the truth with water through the simulator's sensor: noise, "
+             "mosaic, demosaicing) with the water removed through the model's render."
              + (f" Extra train flags: `{args.train_args}`." if args.train_args else ""), ""]
     for variant in dict.fromkeys(r["variant"] for r in rows):
         lines.append("- " + _summary(rows, variant))
         lines += _by_path(rows, variant)
     lines += ["", "| path | water | variant | medium | sigma_attn error | sigma_bs error | "
               "c_med error | truth in interval | truth in robust interval | "
-              "restored / full vs clean (dB) | restored, covered (dB) |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "restored / full vs clean (dB) | restored, covered (dB) | "
+              "photograph restored, all / covered (dB) |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         cells = []
         for key in KEYS:
@@ -293,7 +339,9 @@ def write_results(rows: list[dict], args, seconds: float, machine: str | None = 
                      + " | ".join(cells) + f" | {sum(covered)}/{len(covered)} | "
                      f"{sum(robust)}/{len(robust)} | "
                      f"{r['restored_psnr']:.1f} / {r['full_psnr']:.1f} | "
-                     f"{r.get('restored_psnr_covered', float('nan')):.1f} |")
+                     f"{r.get('restored_psnr_covered', float('nan')):.1f} | "
+                     f"{r.get('photo_psnr', float('nan')):.1f} / "
+                     f"{r.get('photo_psnr_covered', float('nan')):.1f} |")
     machine = machine or (f"{cpu_name()}; load {load_average()}; {time.strftime('%Y-%m-%d')}; "
                           f"{seconds / 60:.0f} min in all")
     lines += ["", f"Machine: {machine}.", ""]

@@ -483,7 +483,11 @@ def _track_slope(removed: float, held_out: bool = True, seed: int = 0,
     far = ids >= 36
     return {"source": "/d/sparse/0", "range_units": "source units (COLMAP's)",
             "restored_from": "the trained model",
-            "all_views": colour_slope_summary(ids, ranges, observed, restored, rendered),
+            "all_views": {**colour_slope_summary(ids, ranges, observed, restored, rendered),
+                          "photographs": {**colour_slope_summary(
+                              ids, ranges, observed,
+                              albedo * np.exp(-0.5 * BETA * ranges[:, None]) * noise),
+                              "window": 0.02}},
             **({"near_tracks": colour_slope_summary(ids[~far], ranges[~far], observed[~far],
                                                     restored[~far]),
                 "far_tracks": colour_slope_summary(ids[far], ranges[far], observed[far],
@@ -581,6 +585,12 @@ def test_html_shows_slopes_per_channel_against_the_goal_and_why_a_part_is_missin
                 f"&plusmn; {reef_all['rendered']['stderr'][channel]:.4g}</td><td>{restored:.4g} "
                 f"&plusmn; {reef_all['restored']['stderr'][channel]:.4g}</td>"
                 f"<td>{100 * reef_all['reduction'][channel]:.0f}%</td>") in reef
+        photo = reef_all["photographs"]
+        assert (f"<td>{photo['restored']['slope'][channel]:.4g} &plusmn; "
+                f"{photo['restored']['stderr'][channel]:.4g}</td>"
+                f"<td>{100 * photo['reduction'][channel]:.0f}%</td>") in reef
+    assert f"<td rowspan=\"3\">{100 * photo['reduction_overall']:.0f}%</td>" in reef
+    assert photo["reduction_overall"] == pytest.approx(0.5, abs=0.05)
     # parts without the full render's slope (evaluations from before it) leave its cell empty
     near = records[0].summary.track_colour_slope["near_tracks"]
     near_input = near["input"]

@@ -29,8 +29,8 @@ torch.set_num_threads(1)
 
 LN2 = math.log(2.0)
 GL_NODES, GL_WEIGHTS = np.polynomial.legendre.leggauss(16)
-FIELDS = ("rgb", "direct", "backscatter", "restored", "weights", "transmittance", "opacity",
-          "depth_mean", "depth_median")
+FIELDS = ("rgb", "direct", "backscatter", "restored", "direct_share", "weights", "transmittance",
+          "opacity", "depth_mean", "depth_median")
 HYPOTHESIS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
@@ -66,7 +66,8 @@ def reference_seathru(sigma, rgb, edges, attn, bs, cmed, water_before=True, wate
 
     Returns a dict of the fields of RayRender (float64 arrays)."""
     rays, samples = sigma.shape
-    out = {name: np.zeros((rays, 3)) for name in ("direct", "backscatter", "restored")}
+    out = {name: np.zeros((rays, 3)) for name in ("direct", "backscatter", "restored",
+                                                  "direct_share")}
     out["weights"] = np.zeros((rays, samples))
     out["transmittance"] = np.zeros((rays, samples + 1))
     for r in range(rays):
@@ -77,11 +78,13 @@ def reference_seathru(sigma, rgb, edges, attn, bs, cmed, water_before=True, wate
         out["restored"][r] = out["weights"][r] @ rgb[r]
         for c in range(3):
             a, b, m = attn[r, c], bs[r, c], cmed[r, c]
-            direct = medium = 0.0
+            direct = medium = share = 0.0
             for i in range(samples):
                 s, sg, tau = starts[i], sigma[r, i], optical[i]
-                direct += quadrature(lambda u: np.exp(-tau - sg * u - a * (s + u)) * sg * rgb[r, i, c],
-                                     lengths[i], sg + a)
+                reach = quadrature(lambda u: np.exp(-tau - sg * u - a * (s + u)) * sg,
+                                   lengths[i], sg + a)
+                direct += reach * rgb[r, i, c]
+                share += reach
                 medium += quadrature(lambda u: np.exp(-tau - sg * u - b * (s + u)) * b * m,
                                      lengths[i], sg + b)
             if water_before:
@@ -91,6 +94,7 @@ def reference_seathru(sigma, rgb, edges, attn, bs, cmed, water_before=True, wate
                 span = 60.0 / b if t_far is None else max(t_far - last, 0.0)
                 medium += quadrature(lambda u: np.exp(-tau_last - b * (last + u)) * b * m, span, b)
             out["direct"][r, c], out["backscatter"][r, c] = direct, medium
+            out["direct_share"][r, c] = share
     out["rgb"] = out["direct"] + out["backscatter"]
     out["opacity"] = out["weights"].sum(axis=1)
     mids = 0.5 * (edges[:, 1:] + edges[:, :-1])
@@ -307,7 +311,8 @@ def check_exact_against_reference(scene, water_before=True, water_after=True, t_
     inputs = tensors(*scene)
     render = render_seathru(*inputs, water_before=water_before, water_after=water_after, t_far=t_far)
     reference = reference_seathru(sigma, rgb, edges, attn, bs, cmed, water_before, water_after, t_far)
-    for name in ("rgb", "direct", "backscatter", "restored", "weights", "transmittance", "opacity"):
+    for name in ("rgb", "direct", "backscatter", "restored", "direct_share", "weights",
+                 "transmittance", "opacity"):
         assert_matches(getattr(render, name), reference[name], name)
     opacity = reference["opacity"]
     unambiguous = (np.abs(opacity - 1e-12) > 1e-12) if opacity.size else opacity

@@ -222,6 +222,33 @@ def test_rendered_colours_come_from_the_ray_of_each_observations_pixel(tmp_path,
         np.testing.assert_allclose(colour, dirs[row * frame.width + col], atol=1e-6)
 
 
+def test_restored_photo_colours_are_read_at_each_observations_pixel(tmp_path, monkeypatch):
+    """Photographs holding (row, col, frame) at each pixel, at full and at half size."""
+    cameras, obs = _tracked_scene(tmp_path, monkeypatch)
+    for shrink in (1, 2):
+        renders = tmp_path / f"render{shrink}"
+        for index, frame in enumerate(cameras.frames):
+            height, width = frame.height // shrink, frame.width // shrink
+            rows, cols = np.mgrid[0:height, 0:width]
+            write_float_tiff(renders / "photos" / f"{frame.name}.tiff",
+                             np.stack([rows, cols, np.full_like(rows, index)], -1)
+                             .astype(np.float32))
+        source, photo = tracks_io.restored_photo_colours(renders, cameras, obs)
+        # a window's mean of a linear ramp is the ramp, away from the edges
+        inner = np.ones(len(obs.rows), bool)
+        for index, frame in enumerate(cameras.frames):
+            here = obs.frames == index
+            inner &= ~here | ((obs.rows >= 2 * shrink) & (obs.rows < frame.height - 2 * shrink)
+                              & (obs.cols >= 2 * shrink) & (obs.cols < frame.width - 2 * shrink))
+        assert inner.sum() > 20
+        np.testing.assert_allclose(photo[inner], np.stack([obs.rows // shrink, obs.cols // shrink,
+                                                           obs.frames], -1)[inner], atol=1e-4)
+        if shrink == 1:   # the input images hold (row, col, frame) too
+            np.testing.assert_allclose(source[inner], photo[inner], atol=1e-4)
+    (tmp_path / "render1" / "photos" / f"{cameras.frames[0].name}.tiff").unlink()
+    assert tracks_io.restored_photo_colours(tmp_path / "render1", cameras, obs) is None
+
+
 def test_opacity_in_front_stops_each_ray_short_of_its_points_range(tmp_path, monkeypatch):
     """A stand-in model whose opacity is the far bound it is given: each observation's ray ends
     at the share of its point's range, in the camera file's normalised units."""
@@ -263,7 +290,19 @@ def test_track_colour_slope_splits_the_tracks_into_near_and_far(tmp_path, monkey
                         lambda model, origins, directions, near, far, chunk=8192:
                         {"restored": torch.ones(len(origins), 3),
                          "rgb": torch.full((len(origins), 3), 0.5)})
-    result = tracks_io.track_colour_slope(cameras, tmp_path / "model.pt", min_tracks=1)
+    renders = tmp_path / "render"
+    result = tracks_io.track_colour_slope(cameras, tmp_path / "model.pt", min_tracks=1,
+                                          renders=renders)
+    assert "photographs" not in result["all_views"]     # the render step wrote none
+    for frame in cameras.frames:   # restored photographs of one grey: no slope left
+        write_float_tiff(renders / "photos" / f"{frame.name}.tiff",
+                         np.full((frame.height, frame.width, 3), 0.4, np.float32))
+    result = tracks_io.track_colour_slope(cameras, tmp_path / "model.pt", min_tracks=1,
+                                          renders=renders)
+    photographs = result["all_views"]["photographs"]
+    assert photographs["restored"]["slope"] == pytest.approx([0.0] * 3, abs=1e-9)
+    assert photographs["reduction_overall"] == pytest.approx(1.0)
+    assert photographs["input"]["observations"] == len(obs.rows)
     far = far_tracks(obs.track_ids, obs.ranges)
     # a render that does not change with range follows none of the input's slope
     assert result["all_views"]["rendered"]["slope"] == pytest.approx([0.0] * 3, abs=1e-12)

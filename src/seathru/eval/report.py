@@ -53,6 +53,7 @@ TABLE_COLUMNS = (
     "error", "views",
     "psnr_linear", "ssim_linear", "psnr_srgb", "ssim_srgb", "lpips",
     "restored_psnr_linear", "restored_psnr_linear_covered", "restored_ssim_linear",
+    "photo_restored_psnr_linear",
     "full_vs_clean_psnr_linear",
     "depth_median_abs_rel", "depth_corr", *CHART_COLUMNS, "track_slope_reduction",
     "train_time_s", "train_steps",
@@ -428,6 +429,9 @@ def track_slope_rows(records: Sequence[DatasetRecord]) -> list[dict]:
                 continue
             inputs, restored = _slope_fit(part.get("input")), _slope_fit(part.get("restored"))
             rendered = _slope_fit(part.get("rendered"))
+            photographs = part.get("photographs") or {}
+            photo = _slope_fit(photographs.get("restored"))
+            photo_reduction = list(photographs.get("reduction") or [])
             reduction = list(part.get("reduction") or [])
             overall = _finite(part.get("reduction_overall"))
             parts.append({
@@ -437,9 +441,14 @@ def track_slope_rows(records: Sequence[DatasetRecord]) -> list[dict]:
                 "channels": [{"channel": name, "input": inputs[i],
                               "restored": restored[i] if i < len(restored) else (None, None),
                               "rendered": rendered[i] if i < len(rendered) else (None, None),
+                              "photo": photo[i] if i < len(photo) else (None, None),
                               "reduction": _finite(reduction[i]) if i < len(reduction)
-                              else None} for i, name in enumerate("RGB"[:len(inputs)])],
+                              else None,
+                              "photo_reduction": _finite(photo_reduction[i])
+                              if i < len(photo_reduction) else None}
+                             for i, name in enumerate("RGB"[:len(inputs)])],
                 "overall": overall,
+                "photo_overall": _finite(photographs.get("reduction_overall")),
                 "meets_goal": overall is not None and overall >= TRACK_SLOPE_GOAL,
                 "followed": followed_share(inputs, rendered)})
         rows.append({"dataset": record.dataset, "range_units": slope.get("range_units"),

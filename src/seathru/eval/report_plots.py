@@ -7,8 +7,8 @@ one to PNG bytes and closes it). No file I/O.
 - :func:`plot_frontier`: one dataset's runs (its sheet row and sweep variants), each labelled
   with its capacity level: held-out PSNR (and restored-vs-clean) of every snapshot against
   training time, and the final PSNR against render time per frame, each with its Pareto front;
-- :func:`plot_strip`: ground truth | full render | restored | depth | backscatter for a few
-  held-out views of one dataset;
+- :func:`plot_strip`: ground truth | full render | restored | photograph restored | depth |
+  backscatter for a few held-out views of one dataset;
 - :func:`plot_chart_swatches`: a measured colour chart's patches, reference against the photo,
   the ingest image and the restored render (:func:`chart_swatches`).
 
@@ -31,7 +31,8 @@ from seathru.eval.truth import WATER_KEYS
 from seathru.radiometry.colour import linear_to_srgb
 
 STRIP_COLUMNS = (("gt", "ground truth"), ("full", "full render"), ("restored", "restored"),
-                 ("depth", "depth"), ("backscatter", "backscatter"))
+                 ("restored_photo", "photograph restored"), ("depth", "depth"),
+                 ("backscatter", "backscatter"))
 CHANNEL_COLOURS = ("#d62728", "#2ca02c", "#1f77b4")
 WATER_TITLES = {"sigma_attn": "attenuation sigma_attn", "sigma_bs": "backscatter sigma_bs",
                 "c_med": "medium colour c_med"}
@@ -264,8 +265,8 @@ def strip_views(views: Sequence[str], count: int) -> list[str]:
 
 def plot_strip(record: DatasetRecord,
                images: Mapping[str, Mapping[str, np.ndarray | None]], height: int):
-    """Rows of held-out views: ground truth | full | restored | depth | backscatter, or None
-    when there is no image.
+    """Rows of held-out views: ground truth | full | restored | photograph restored | depth |
+    backscatter, or None when there is no image.
 
     Args:
         images: view -> {column name of :data:`STRIP_COLUMNS` -> display image (H, W, 3) in

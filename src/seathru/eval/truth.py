@@ -132,7 +132,8 @@ def training_view_coverage(view, view_range: np.ndarray,
 def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndarray,
                        clean: np.ndarray, water: np.ndarray, truth_depth: np.ndarray,
                        gain: np.ndarray, metres_per_unit: float,
-                       covered: np.ndarray | None = None) -> dict[str, float]:
+                       covered: np.ndarray | None = None,
+                       restored_photo: np.ndarray | None = None) -> dict[str, float]:
     """The truth columns of ``metrics.csv`` for one held-out view.
 
     Args:
@@ -149,6 +150,9 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
             see (:func:`training_view_coverage`); given, the restored view is also scored on
             those alone (``restored_psnr_linear_covered``, ``covered_share`` of the scored
             pixels).
+        restored_photo: ``(H, W, 3)`` or None: the view's photograph with the water removed
+            by the model's render (``seathru.radiometry.restore``); given, scored alike
+            (``photo_restored_psnr_linear``, ``..._ssim_linear``, ``..._psnr_linear_covered``).
     """
     defined = np.all(np.isfinite(clean), axis=-1) & np.isfinite(truth_depth)
     restored_m = metrics.image_metrics(gain * restored, clean, valid=defined)
@@ -162,6 +166,14 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
                      gain * restored, clean, valid=seen)["psnr_linear"] if seen.any()
                  else float("nan"),
                  "covered_share": float(seen.sum() / max(int(defined.sum()), 1))}
+    if restored_photo is not None:
+        photo_m = metrics.image_metrics(gain * restored_photo, clean, valid=defined)
+        extra["photo_restored_psnr_linear"] = photo_m["psnr_linear"]
+        extra["photo_restored_ssim_linear"] = photo_m["ssim_linear"]
+        if covered is not None:
+            extra["photo_restored_psnr_linear_covered"] = metrics.image_metrics(
+                gain * restored_photo, clean, valid=seen)["psnr_linear"] if seen.any() \
+                else float("nan")
     return {
         "restored_psnr_linear": restored_m["psnr_linear"],
         "restored_ssim_linear": restored_m["ssim_linear"],

@@ -8,6 +8,9 @@ Layout::
     test/<view>/depth.tiff    expected ray distance, normalised scene units, float32 (H, W)
     test/<view>/depth.png     depth colour-mapped (near warm, far cool; one range per dataset)
     test/<view>/opacity.tiff  accumulated object opacity, float32 (H, W) (when rendered)
+    test/<view>/restored_photo.{tiff,png}  the view's photograph with the water removed by the
+                              model's render (``seathru.radiometry.restore``; when readable)
+    photos/<view>.{tiff,png}  every camera's photograph restored alike (``photos.restore: all``)
     path/{full,restored,depth}.mp4   camera-path videos ('mp4v'; odd sizes padded by one pixel)
     render_stats.json         seconds per frame, frames per second, resolution, display
                               exposure, depth range, settings (format seathru-render-stats/1)
@@ -43,6 +46,8 @@ COMPONENTS = ("full", "restored", "direct", "backscatter")
 RENDER_KEYS = {"full": "rgb", "restored": "restored", "direct": "direct",
                "backscatter": "backscatter"}
 VIDEO_OUTPUTS = ("full", "restored", "depth")
+RESTORED_PHOTO = "restored_photo"
+PHOTOS_DIR = "photos"
 MAX_EXPOSURE_IMAGES = 24
 _HINT = "re-run the 'render' step"
 
@@ -134,6 +139,61 @@ def write_test_view(root: str | os.PathLike, view: str, images: Mapping[str, np.
         write_float_tiff(render_path(root, view, "opacity"), images["opacity"])
     if "gt" in shown:
         write_display(root, view, "gt", shown["gt"])
+
+
+def write_restored_photo(root: str | os.PathLike, view: str, photograph: np.ndarray,
+                         images: Mapping[str, np.ndarray], scale: float, photos,
+                         test_view: bool = True) -> bool:
+    """Restore a photograph through the model's render of its view
+    (``seathru.radiometry.restore``) and write it, linear and display copy:
+    ``test/<view>/restored_photo.*`` for a held-out view, else ``photos/<view>.*``.
+
+    Args:
+        photograph: the view's linear image at the render's size.
+        images: the inference dict of the view (``rgb``, ``restored``, ``direct_share``,
+            ``opacity``); without the last two (a stand-in renderer) nothing is written.
+        scale: the display exposure; photos: the render step's
+            ``seathru.radiometry.restore.PhotoRestoration``.
+
+    Returns:
+        whether it was written.
+    """
+    from seathru.eval.display import to_display
+    from seathru.radiometry.restore import restore_photograph
+
+    if "direct_share" not in images or "opacity" not in images:
+        log.warning("%s: the renderer gives no direct_share/opacity; no restored photograph",
+                    view)
+        return False
+    restored = restore_photograph(photograph, images, photos.max_gain, photos.detail_scale)
+    if test_view:
+        write_float_tiff(render_path(root, view, RESTORED_PHOTO), restored)
+        write_display(root, view, RESTORED_PHOTO, to_display(restored, scale))
+    else:
+        write_float_tiff(Path(root) / PHOTOS_DIR / f"{view}.tiff", restored)
+        write_8bit(Path(root) / PHOTOS_DIR / f"{view}.png", to_display(restored, scale))
+    return True
+
+
+def restore_all_photos(render_fn, cameras: CameraSet, root: str | os.PathLike, scale: float,
+                       downscale: int, photos) -> int:
+    """Every camera's photograph restored into ``photos/`` (:func:`write_restored_photo`), one
+    render per view (``render_fn(frame, downscale)``); returns how many were written."""
+    from seathru.nerf.inference import timed_renders
+    from seathru.radiometry.linearise import resize_area
+
+    frames = sorted(cameras.frames, key=lambda f: f.name)
+    done = 0
+    for frame, images, seconds in timed_renders(render_fn, frames, downscale):
+        photograph = read_view_image(cameras, frame)
+        if photograph is None:
+            continue
+        height, width = images["depth"].shape[:2]
+        done += write_restored_photo(root, frame.name, resize_area(photograph, (width, height)),
+                                     images, scale, photos, test_view=False)
+        log.info("restored photograph %s in %.2f s", frame.name, seconds)
+    log.info("restored %d of %d photographs into %s/", done, len(frames), PHOTOS_DIR)
+    return done
 
 
 def write_display(root: str | os.PathLike, view: str, name: str, image: np.ndarray) -> None:

@@ -20,11 +20,15 @@ import numpy as np
 
 from seathru.errors import PipelineError
 from seathru.geometry.poses import pixel_of_points
+from seathru.io import renders as renders_io
 from seathru.io.cameras import CameraSet
 from seathru.io.colmap import read_model
 from seathru.io.images import read_image, read_mask
 
 log = logging.getLogger(__name__)
+#: The restored photographs' colour along tracks is the mean over a window this share of the
+#: photograph's width across (:func:`restored_photo_colours`).
+PHOTO_WINDOW = 0.02
 
 SPARSE_DIR = "sparse"
 MIN_TRACKS = 20     # fewer tracks: no slope is reported
@@ -169,11 +173,50 @@ def opacity_in_front(model, cameras: CameraSet, obs: TrackObservations, share: f
     return opacity
 
 
+def restored_photo_colours(renders: Path, cameras: CameraSet, obs: TrackObservations,
+                           window: float = PHOTO_WINDOW) -> tuple[np.ndarray, np.ndarray] | None:
+    """The input images and the render step's restored photographs (``photos/<view>.tiff``)
+    around each observation: ``(input, restored)``, each (N, 3), the mean over a square window
+    ``window`` of the photograph's width across (odd, at least 3 pixels), at the photograph's
+    size. None unless every frame with an observation has one (``render.photos.restore`` other
+    than ``all``).
+
+    A window, not the pixel: the tracks' pixels are feature points (blobs and corners), where the
+    photograph differs most from the model's smoother render, and that detail, divided by the
+    transmission, would bias a slope taken at the points themselves.
+    """
+    from scipy.ndimage import uniform_filter
+
+    from seathru.radiometry.linearise import resize_area
+
+    colours = np.zeros((2, len(obs.rows), 3), np.float32)
+    for index, frame in enumerate(cameras.frames):
+        here = np.flatnonzero(obs.frames == index)
+        if here.size == 0:
+            continue
+        path = Path(renders) / renders_io.PHOTOS_DIR / f"{frame.name}.tiff"
+        if not path.is_file():
+            return None
+        photo = read_image(path)[..., :3]
+        height, width = photo.shape[:2]
+        source = resize_area(read_image(cameras.image_path(frame))[..., :3], (width, height))
+        size = max(3, 2 * int(round(window * width / 2)) + 1)
+        rows = np.minimum((obs.rows[here] * height) // frame.height, height - 1)
+        cols = np.minimum((obs.cols[here] * width) // frame.width, width - 1)
+        for k, image in enumerate((source, photo)):
+            smooth = uniform_filter(np.nan_to_num(image), (size, size, 1), mode="nearest")
+            colours[k, here] = smooth[rows, cols]
+    return colours[0], colours[1]
+
+
 def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None = None,
-                       min_tracks: int = MIN_TRACKS) -> dict | None:
+                       min_tracks: int = MIN_TRACKS, renders: Path | None = None
+                       ) -> dict | None:
     """``summary.json``'s ``track_colour_slope``: the within-track slope of log colour against
     range in the input images, in the restored renders and in the full renders (with water),
-    per channel, and its reduction
+    per channel, and its reduction; with the render step's restored photographs in
+    ``renders`` (:func:`restored_photo_colours`), each part also holds ``"photographs"``: the
+    same summary of the input images and the restored photographs around the observations
     (``seathru.eval.track_slope.colour_slope_summary``) over all views of the tracks, and over
     the held-out views alone where at least ``min_tracks`` tracks have two held-out
     observations (else that part is ``{"source": "none", "reason": ...}``), and over all views
@@ -190,6 +233,7 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
     if not Path(model_path).is_file():
         return {"source": "none", "reason": f"{model_path}: no trained model"}
     obs = track_observations(cameras, model_dir)
+    photo = None if renders is None else restored_photo_colours(renders, cameras, obs)
     result: dict = {"source": str(model_dir), "range_units": "source units (COLMAP's)",
                     "restored_from": "the trained model, rendered at every observation's pixel"}
     far = far_tracks(obs.track_ids, obs.ranges)
@@ -215,6 +259,10 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
         result[name] = colour_slope_summary(obs.track_ids[keep], obs.ranges[keep],
                                             obs.observed[keep], rendered["restored"][keep],
                                             rendered["rgb"][keep])
+        if photo is not None:
+            result[name]["photographs"] = {
+                **colour_slope_summary(obs.track_ids[keep], obs.ranges[keep], photo[0][keep],
+                                       photo[1][keep]), "window": PHOTO_WINDOW}
     headline = result.get("all_views", {})
     if "reduction" in headline:
         log.info("track colour slope (log colour per unit range, R G B): input %s, full render "

@@ -17,8 +17,8 @@ import torch
 from seathru.errors import PipelineError
 from seathru.nerf.rays import frame_rays, render_size
 
-RENDER_KEYS = ("rgb", "restored", "direct", "backscatter", "depth", "opacity")
-REQUIRED_KEYS = RENDER_KEYS[:-1]  # opacity is optional for stand-in renderers
+RENDER_KEYS = ("rgb", "restored", "direct", "backscatter", "depth", "opacity", "direct_share")
+REQUIRED_KEYS = RENDER_KEYS[:-2]  # opacity and direct_share are optional for stand-in renderers
 
 RenderFn = Callable[[Any, int], dict]
 
@@ -39,7 +39,8 @@ def render_rays(model, origins: torch.Tensor, directions: torch.Tensor, near: to
                         far[sl].to(device)).render
             for key, value in (("rgb", out.rgb), ("restored", out.restored),
                                ("direct", out.direct), ("backscatter", out.backscatter),
-                               ("depth", out.depth_mean), ("opacity", out.opacity)):
+                               ("depth", out.depth_mean), ("opacity", out.opacity),
+                               ("direct_share", out.direct_share)):
                 parts[key].append(value.float().cpu())
     finally:
         model.train(was_training)
@@ -49,8 +50,9 @@ def render_rays(model, origins: torch.Tensor, directions: torch.Tensor, near: to
 @torch.no_grad()
 def render_frame(model, frame, chunk: int = 8192, downscale: int = 1) -> dict[str, np.ndarray]:
     """Render a ``seathru.io.cameras.Frame``: "rgb" (full, with water), "restored", "direct",
-    "backscatter" (H, W, 3) and "depth" (expected ray distance, normalised units), "opacity"
-    (H, W), float32, at (H // downscale, W // downscale)."""
+    "backscatter", "direct_share" (H, W, 3: ``seathru.nerf.rendering.RayRender``) and "depth"
+    (expected ray distance, normalised units), "opacity" (H, W), float32, at
+    (H // downscale, W // downscale)."""
     if chunk < 1:
         raise ValueError(f"chunk must be >= 1, got {chunk}")
     width, height = render_size(frame.width, frame.height, downscale)

@@ -88,6 +88,8 @@ class RayRender:
     direct: Tensor         # (R, 3) attenuated object component
     backscatter: Tensor    # (R, 3) water component
     restored: Tensor       # (R, 3) object colour without water: sum_i w_i c_i
+    direct_share: Tensor   # (R, 3) what of a uniform object colour c reaches the camera:
+                           # direct = direct_share * c, restored = opacity * c
     weights: Tensor        # (R, S) object weights w_i = T_i (1 - exp(-sigma_i d_i))
     transmittance: Tensor  # (R, S+1) object transmittance at each edge, T_0 = 1
     opacity: Tensor        # (R,) sum_i w_i
@@ -274,6 +276,7 @@ def render_seathru(sigma_obj: Tensor, rgb_obj: Tensor, t_edges: Tensor, sigma_at
         direct_weights = direct_reach * alpha[..., None]
         medium_weights = medium_reach * _absorbed_fraction(bs3, torch.zeros_like(bs3), delta3)
     direct = (direct_weights * rgb_obj).sum(dim=1)
+    direct_share = direct_weights.sum(dim=1)
 
     medium_share = medium_weights.sum(dim=1)            # (R, 3)
     if water_before:
@@ -301,6 +304,7 @@ def render_seathru(sigma_obj: Tensor, rgb_obj: Tensor, t_edges: Tensor, sigma_at
         direct=direct,
         backscatter=backscatter,
         restored=restored,
+        direct_share=direct_share,
         weights=weights,
         transmittance=transmittance,
         opacity=opacity,

@@ -13,10 +13,9 @@ they are on disk, uint8-truncated, written in NerfBaselines' layout to ``--out/n
 (``seathru.io.nerfbaselines``). A colour chart (``--chart`` annotation, ``colour_chart.json`` in
 the dataset folder, else OpenCV's mcc detector) is measured on the photo, the ingest image and
 the restored render: CIEDE2000 and grey angular error (``seathru.io.chart``). With the poses
-step's COLMAP model: how colour changes with range along its tracks, in the input and in the
-restored colour (``track_colour_slope``, ``seathru.io.tracks``). With ``--truth``
-(a simulated dataset's ``simulate/truth``): restored renders against the clean truth, depth and
-water (``seathru.io.evaluation.truth_evaluation``).
+step's COLMAP model: colour against range along its tracks, in the input, the restored render
+and the restored photographs (``seathru.io.tracks``). With ``--truth`` (``simulate/truth``):
+restorations against the clean truth, depth, water (``seathru.io.evaluation``).
 
 Writes ``metrics.csv`` (one row per held-out view), ``summary.json`` (means, render speed,
 training time, fitted water, the medium selection, protocol and chart results) and
@@ -136,7 +135,8 @@ def run(args: argparse.Namespace) -> None:
         train_log=train_log, water=None if water is None else water.to_dict(),
         selection=read_json(args.train_dir / "selection.json", missing_ok=True), truth=truth,
         protocol=protocol, colour_chart=chart,
-        track_colour_slope=track_colour_slope(cameras, args.train_dir / "model.pt", args.threads))
+        track_colour_slope=track_colour_slope(cameras, args.train_dir / "model.pt", args.threads,
+                                              renders=args.renders))
     args.out.mkdir(parents=True, exist_ok=True)
     write_metrics(args.out / "metrics.csv", table)
     write_summary(args.out / "summary.json", summary)

@@ -1,7 +1,8 @@
 """Render held-out views and a camera path: full, restored, depth, backscatter, direct; videos.
 
 Writes ``OUT/test/<view>/`` (linear ``.tiff`` and display ``.png`` of every component, ``gt.png``,
-depth), ``OUT/path/*.mp4`` (a smooth path through the training cameras) and
+depth, the view's photograph with the water removed), ``OUT/photos/`` (every photograph restored,
+with ``photos.restore: all``), ``OUT/path/*.mp4`` (a smooth path through the training cameras) and
 ``OUT/render_stats.json``: the layout is ``seathru.io.renders``. Display copies share one
 exposure per dataset: the ``exposure_percentile`` of the training images maps to
 ``exposure_target`` before sRGB encoding (``seathru.eval.display``); linear outputs are never
@@ -26,7 +27,8 @@ from seathru.io.atomic import atomic_dir
 from seathru.io.cameras import CameraSet, read_cameras
 from seathru.io.images import read_image
 from seathru.radiometry.linearise import resize_area
-from seathru.settings import setting
+from seathru.radiometry.restore import PhotoRestoration
+from seathru.settings import section, setting
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +49,7 @@ class Settings:
                                      "percentile before sRGB encoding")
     depth_cmap: str = setting(display.DEFAULT_DEPTH_CMAP,
                               help="matplotlib colour map for depth images")
+    photos: PhotoRestoration = section(PhotoRestoration)
     device: str = setting("auto", help="torch device: auto (CUDA when available), cpu, cuda:N")
 
     @property
@@ -124,8 +127,11 @@ def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Map
                      for name, key in renders.RENDER_KEYS.items()}
             truth = renders.read_view_image(cameras, frame)
             if truth is not None:
-                shown["gt"] = display.to_display(resize_area(truth, (width, height)), scale)
+                truth = resize_area(truth, (width, height))
+                shown["gt"] = display.to_display(truth, scale)
             renders.write_test_view(tmp, frame.name, images, shown)
+            if truth is not None and cfg.photos.restore != "none":
+                renders.write_restored_photo(tmp, frame.name, truth, images, scale, cfg.photos)
             depth_samples.append(display.sample_values(images["depth"], 20_000))
             test_stats.append(renders.frame_record(frame.name, "test", seconds, images))
             log.info("rendered %s (%dx%d) in %.2f s", frame.name, width, height, seconds)
@@ -137,6 +143,8 @@ def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Map
         for frame in test_frames:
             depth = read_image(renders.render_path(tmp, frame.name, "depth"))
             renders.write_display(tmp, frame.name, "depth", colour(depth))
+        if cfg.photos.restore == "all":
+            renders.restore_all_photos(render_fn, cameras, tmp, scale, cfg.downscale, cfg.photos)
         path_stats, videos = [], {}
         if cfg.path_frames > 0:
             with renders.PathVideos(tmp / "path", cfg.fps) as writer:
