@@ -455,7 +455,11 @@ def test_render_frame_shapes_and_chunk_invariance():
     full = render_frame(model, frame, chunk=7)
     big = render_frame(model, frame, chunk=8192)
     assert full["rgb"].shape == (6, 10, 3) and full["depth"].shape == (6, 10)
-    assert set(full) == {"rgb", "restored", "direct", "backscatter", "depth", "opacity"}
+    assert set(full) == {"rgb", "restored", "direct", "backscatter", "depth", "opacity",
+                         "direct_share"}
+    assert full["direct_share"].shape == (6, 10, 3)
+    # a uniform object colour c reaches the camera as direct_share * c, at most its opacity
+    assert np.all(full["direct_share"] <= full["opacity"][..., None] + 1e-6)
     for key in full:
         assert full[key].dtype == np.float32
         assert np.allclose(full[key], big[key], atol=1e-6)
