@@ -40,8 +40,9 @@ _MIN_SHARE = 1e-6
 class PhotoRestoration:
     """The photographs with the water removed through the model's render."""
 
-    restore: Literal["none", "test", "all"] = setting("all", help="test: the held-out views' "
-        "(test/<view>/restored_photo.*); all: also every training view's (photos/<view>.*)")
+    restore: Literal["none", "test", "all"] = setting("test", help="test: the held-out views' "
+        "(test/<view>/restored_photo.*); all: also every training view's (photos/<view>.*; "
+        "one render per view)")
     max_gain: float = setting(DEFAULT_MAX_GAIN, help="the most the photograph minus the full "
                               "render is magnified (one over the least transmission divided out)")
     detail_scale: float = setting(DEFAULT_DETAIL_SCALE, help="only the residual's variations "
