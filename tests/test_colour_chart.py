@@ -210,6 +210,14 @@ def test_evaluate_measures_an_annotated_chart_in_the_dataset_folder(tmp_path):
     written = json.loads((data["root"] / "evaluate" / "colour_chart.json").read_text())
     assert written["stored"]["mean_delta_e00"] == pytest.approx(chart["stored"]
                                                                 ["mean_delta_e00"])
+    assert "restored no photograph of view_00" in chart["restored_photo"]["reason"]
+    # the render step's restored photograph of the view (photos/, a training view's) is
+    # measured too: here the ingest image, so its error is the ingest's
+    write_float_tiff(data["root"] / "render" / "photos" / "view_00.tiff",
+                     read_image(data["root"] / "ingest" / "linear" / "view_00.tiff"))
+    chart = _evaluate(data["root"], "--no-chart-detect")
+    assert chart["restored_photo"]["mean_delta_e00"] == pytest.approx(
+        chart["ingest"]["mean_delta_e00"], rel=1e-3)
 
 
 def test_evaluate_finds_a_chart_with_mcc_or_records_that_it_found_none(tmp_path):

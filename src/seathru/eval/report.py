@@ -45,7 +45,8 @@ ERROR_LINE = re.compile(r"seathru (?P<step>[\w-]+): error: (?P<message>.*)")
 STOPPED_BY_LINE = re.compile(r"\(stopped by (?P<cause>\w+)[;)]")
 NOT_RUN = "no results and no logs (not run yet?)"
 #: The colour chart's images (keys of the evaluate step's ``colour_chart``) and their labels.
-CHART_IMAGES = (("stored", "photo"), ("ingest", "ingest"), ("restored", "restored"))
+CHART_IMAGES = (("stored", "photo"), ("ingest", "ingest"), ("restored", "restored"),
+                ("restored_photo", "restored_photo"))
 CHART_COLUMNS = (*(f"chart_de00_{label}" for _, label in CHART_IMAGES),
                  *(f"chart_grey_deg_{label}" for _, label in CHART_IMAGES))
 TABLE_COLUMNS = (

@@ -39,6 +39,7 @@ from seathru.io.cameras import CameraSet, Frame
 from seathru.io.images import read_image
 from seathru.io.jsonfile import read_json
 from seathru.io.manifest import read_manifest
+from seathru.io.renders import PHOTOS_DIR, RESTORED_PHOTO
 from seathru.io.stored_views import (StoredView, ingest_folder_of, read_stored_codes,
                                      read_stored_views, source_cameras, stored_points_on_frame)
 from seathru.radiometry.colour import linear_to_srgb, srgb_to_linear
@@ -140,7 +141,8 @@ def evaluate_colour_chart(cameras: CameraSet, renders: Path, annotation: Path | 
 
     Returns:
         ``source`` (annotation file, ``mcc`` or ``none``), ``chart``, ``image``, ``excluded``
-        patches and per image ``stored`` / ``ingest`` / ``restored`` the measures of
+        patches and per image ``stored`` / ``ingest`` / ``restored`` / ``restored_photo`` (the
+        render step's restored photograph of the view, where it wrote one) the measures of
         ``seathru.eval.colour_chart.chart_errors`` (or a ``reason`` it is absent).
     """
     ingest = ingest_folder_of(cameras)
@@ -181,7 +183,8 @@ def evaluate_colour_chart(cameras: CameraSet, renders: Path, annotation: Path | 
     result["ingest"] = _measure(linear, corners * scale, spec, use)
     result["restored"] = _restored(cameras, renders, name, view, corners, spec, use,
                                    render_restored)
-    for image in ("stored", "ingest", "restored"):
+    result["restored_photo"] = _restored_photo(cameras, renders, name, view, corners, spec, use)
+    for image in ("stored", "ingest", "restored", "restored_photo"):
         part = result.get(image) or {}
         if "mean_delta_e00" in part:
             log.info("colour chart (%s): %s: mean dE00 %.2f, grey angular error %.2f deg",
@@ -192,6 +195,18 @@ def evaluate_colour_chart(cameras: CameraSet, renders: Path, annotation: Path | 
 def _stored_values_of(view: StoredView, photo: np.ndarray) -> np.ndarray:
     """The stored values in [0, 1] of a decoded photo (for the clipping test)."""
     return linear_to_srgb(photo) if view.encoding == "srgb" else photo
+
+
+def _restored_photo(cameras, renders, name, view, corners, spec, use) -> dict:
+    frame = next((f for f in cameras.frames if f.name == name), None)
+    if frame is None:
+        return {"reason": f"{name} has no camera (not registered by the poses step)"}
+    for path in (Path(renders) / "test" / name / f"{RESTORED_PHOTO}.tiff",
+                 Path(renders) / PHOTOS_DIR / f"{name}.tiff"):
+        if path.is_file():
+            return _measure_on_frame(read_image(path), frame, cameras, view, corners, spec, use)
+    return {"reason": f"the render step restored no photograph of {name} "
+                      "(render.photos.restore: all restores every view's)"}
 
 
 def _restored(cameras, renders, name, view, corners, spec, use, render_restored) -> dict:
@@ -205,6 +220,11 @@ def _restored(cameras, renders, name, view, corners, spec, use, render_restored)
         image = render_restored(frame)
     else:
         return {"reason": f"{name} is a training view and no model to render it"}
+    return _measure_on_frame(image, frame, cameras, view, corners, spec, use)
+
+
+def _measure_on_frame(image, frame, cameras, view, corners, spec, use) -> dict:
+    """The chart measured on an image in the frame's (undistorted) geometry, at its size."""
     points = stored_points_on_frame(corners, view.size, frame, source_cameras(cameras))
     points *= np.array([image.shape[1] / frame.width, image.shape[0] / frame.height])
     return _measure(image, points, spec, use)
