@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Iterator, Mapping
+from collections.abc import Collection, Iterator, Mapping
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import cv2
 import numpy as np
@@ -36,6 +36,9 @@ from seathru.io.cameras import CameraSet
 from seathru.io.contract import check_contract
 from seathru.io.images import read_image, write_8bit, write_float_tiff
 from seathru.io.jsonfile import read_json
+
+if TYPE_CHECKING:
+    from seathru.radiometry.restore import PhotoRestoration
 
 log = logging.getLogger(__name__)
 
@@ -142,18 +145,18 @@ def write_test_view(root: str | os.PathLike, view: str, images: Mapping[str, np.
 
 
 def write_restored_photo(root: str | os.PathLike, view: str, photograph: np.ndarray,
-                         images: Mapping[str, np.ndarray], scale: float, photos,
-                         test_view: bool = True) -> bool:
+                         images: Mapping[str, np.ndarray], scale: float,
+                         photos: PhotoRestoration, test_view: bool = True) -> bool:
     """Restore a photograph through the model's render of its view
     (``seathru.radiometry.restore``) and write it, linear and display copy:
-    ``test/<view>/restored_photo.*`` for a held-out view, else ``photos/<view>.*``.
+    ``test/<view>/restored_photo.*`` for a held-out view, and ``photos/<view>.*`` for any view
+    when ``photos.restore`` is ``all``.
 
     Args:
         photograph: the view's linear image at the render's size.
         images: the inference dict of the view (``rgb``, ``restored``, ``direct_share``,
             ``opacity``); without the last two (a stand-in renderer) nothing is written.
-        scale: the display exposure; photos: the render step's
-            ``seathru.radiometry.restore.PhotoRestoration``.
+        scale: the display exposure; photos: the render step's settings of the restoration.
 
     Returns:
         whether it was written.
@@ -166,34 +169,38 @@ def write_restored_photo(root: str | os.PathLike, view: str, photograph: np.ndar
                     view)
         return False
     restored = restore_photograph(photograph, images, photos.max_gain, photos.detail_scale)
+    shown = to_display(restored, scale)
     if test_view:
         write_float_tiff(render_path(root, view, RESTORED_PHOTO), restored)
-        write_display(root, view, RESTORED_PHOTO, to_display(restored, scale))
-    else:
+        write_display(root, view, RESTORED_PHOTO, shown)
+    if not test_view or photos.restore == "all":
         write_float_tiff(Path(root) / PHOTOS_DIR / f"{view}.tiff", restored)
-        write_8bit(Path(root) / PHOTOS_DIR / f"{view}.png", to_display(restored, scale))
+        write_8bit(Path(root) / PHOTOS_DIR / f"{view}.png", shown)
     return True
 
 
 def restore_all_photos(render_fn, cameras: CameraSet, root: str | os.PathLike, scale: float,
-                       downscale: int, photos) -> int:
-    """Every camera's photograph restored into ``photos/`` (:func:`write_restored_photo`), one
-    render per view (``render_fn(frame, downscale)``); returns how many were written."""
+                       downscale: int, photos: PhotoRestoration,
+                       done: Collection[str] = ()) -> int:
+    """Every camera's photograph not in ``done`` (the held-out views, restored as they were
+    rendered) restored into ``photos/`` (:func:`write_restored_photo`), one render per view
+    (``render_fn(frame, downscale)``); returns how many were written."""
     from seathru.nerf.inference import timed_renders
     from seathru.radiometry.linearise import resize_area
 
-    frames = sorted(cameras.frames, key=lambda f: f.name)
-    done = 0
+    frames = sorted((f for f in cameras.frames if f.name not in done), key=lambda f: f.name)
+    written = 0
     for frame, images, seconds in timed_renders(render_fn, frames, downscale):
         photograph = read_view_image(cameras, frame)
         if photograph is None:
             continue
         height, width = images["depth"].shape[:2]
-        done += write_restored_photo(root, frame.name, resize_area(photograph, (width, height)),
-                                     images, scale, photos, test_view=False)
+        written += write_restored_photo(root, frame.name,
+                                        resize_area(photograph, (width, height)), images, scale,
+                                        photos, test_view=False)
         log.info("restored photograph %s in %.2f s", frame.name, seconds)
-    log.info("restored %d of %d photographs into %s/", done, len(frames), PHOTOS_DIR)
-    return done
+    log.info("restored %d more photographs into %s/", written, PHOTOS_DIR)
+    return written
 
 
 def write_display(root: str | os.PathLike, view: str, name: str, image: np.ndarray) -> None:

@@ -32,8 +32,6 @@ from seathru.settings import setting
 
 DEFAULT_MAX_GAIN = 3.0
 DEFAULT_DETAIL_SCALE = 0.05
-# below this object opacity the residual is the water's, not a surface's: left out
-_MIN_SHARE = 1e-6
 
 
 @dataclass
@@ -92,10 +90,9 @@ def restore_photograph(photograph: np.ndarray, render: Mapping[str, np.ndarray],
     restored = np.asarray(render["restored"], dtype=np.float64)
     opacity = np.asarray(render["opacity"], dtype=np.float64)[..., None]
     share = np.asarray(render["direct_share"], dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        gain = np.where(share > _MIN_SHARE * np.maximum(opacity, _MIN_SHARE),
-                        opacity / np.maximum(share, 1e-30), max_gain)
-    gain = np.clip(gain, 1.0, max_gain) * opacity
+    # opacity / direct_share >= 1 (the water only dims); where both vanish the opacity weight
+    # takes the correction to 0
+    gain = np.clip(opacity / np.maximum(share, 1e-12), 1.0, max_gain) * opacity
     residual = photograph - full
     if detail_scale > 0 and residual.ndim == 3:
         residual = residual - _smooth_part(residual, opacity[..., 0],

@@ -144,7 +144,8 @@ def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Map
             depth = read_image(renders.render_path(tmp, frame.name, "depth"))
             renders.write_display(tmp, frame.name, "depth", colour(depth))
         if cfg.photos.restore == "all":
-            renders.restore_all_photos(render_fn, cameras, tmp, scale, cfg.downscale, cfg.photos)
+            renders.restore_all_photos(render_fn, cameras, tmp, scale, cfg.downscale, cfg.photos,
+                                       done={f.name for f in test_frames})
         path_stats, videos = [], {}
         if cfg.path_frames > 0:
             with renders.PathVideos(tmp / "path", cfg.fps) as writer:
