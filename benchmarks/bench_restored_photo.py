@@ -9,11 +9,21 @@ pixels two or more training views see). The photographs are the pipeline's own (
 the simulated raw files: sensor noise, demosaicing, white balance), so the largest gain trades
 the detail the model misses against the noise it magnifies, and the detail scale the colour the
 model misses against a colour its water does not reproduce (which only a real dive shows:
-``bench_reef.py``).
+``--real-run``).
+
+``--water-dive`` takes a dive of ``bench_water.py``'s work folder instead (``<work>/survey_<water>``:
+true cameras, ``train_cues/model.pt``), whose photographs are the truth with water taken through
+the simulator's sensor again (``bench_water.sensor_photo``), scored as that benchmark scores
+them. ``--real-run`` takes a workflow run of a real dive (``results/d3_reef``): every photograph
+is restored at each setting and the slope of log colour against range along the COLMAP tracks is
+compared with the input's, both averaged over the evaluate step's window
+(``seathru.io.tracks.restored_photo_colours``), over all tracks, the nearest 90% and the farthest
+10%.
 
 Usage::
 
     python benchmarks/bench_restored_photo.py --run /tmp/clone/results/demo [--run ...]
+        [--water-dive /tmp/bw/survey_default ...] [--real-run /tmp/reef/results/d3_reef]
         [--gains 1,2,3,5,10] [--detail-scales 0,0.05] [--out benchmarks/results/restored_photo.md]
 """
 
@@ -61,10 +71,100 @@ def score_run(run: Path, settings: list[tuple[float, float]], work: Path) -> lis
     return rows
 
 
-def write_results(rows: list[dict], settings: list[tuple[float, float]], out: Path,
-                  seconds: float) -> None:
-    lines = ["# Restored photographs (`benchmarks/bench_restored_photo.py`)", "",
-             "PSNR (linear, dB) against the clean truth on the held-out views, as the evaluate "
+def score_water_dive(sim: Path, settings: list[tuple[float, float]]) -> list[dict]:
+    """As :func:`score_run`, on a dive of ``bench_water.py`` (true cameras, sensor photos)."""
+    import torch
+
+    from bench_water import _truth_range, sensor_photo
+    from seathru.eval.truth import training_view_coverage, view_truth_metrics
+    from seathru.io.cameras import read_cameras
+    from seathru.io.images import read_image
+    from seathru.io.model import load_model
+    from seathru.nerf.inference import render_frame
+    from seathru.radiometry.restore import restore_photograph
+
+    torch.set_num_threads(2)
+    cameras = read_cameras(sim / "truth" / "cameras.json")
+    model = load_model(sim / "train_cues" / "model.pt")
+    training = [(f, _truth_range(sim, f, cameras.scale)) for f in cameras.split("train")]
+    rows = []
+    for frame in sorted(cameras.split("test"), key=lambda f: f.name):
+        rendered = render_frame(model, frame)
+        view_range = _truth_range(sim, frame, cameras.scale)
+        water = read_image(sim / "truth" / "water" / f"{frame.name}.tiff")
+        photo = sensor_photo(sim, frame.name, water)
+        common = dict(full=rendered["rgb"], restored=rendered["restored"],
+                      depth=rendered["depth"], water=water,
+                      clean=read_image(sim / "truth" / "clean" / f"{frame.name}.tiff"),
+                      truth_depth=np.where(np.isfinite(view_range) & (view_range > 0),
+                                           view_range / cameras.scale, np.inf),
+                      gain=np.ones(3), metres_per_unit=1.0 / cameras.scale,
+                      covered=training_view_coverage(frame, view_range, training) >= 2)
+        for setting in settings:
+            rows.append({"run": sim.name, "setting": setting, "view": frame.name,
+                         **view_truth_metrics(**common, restored_photo=restore_photograph(
+                             photo, rendered, *setting))})
+    return rows
+
+
+def score_real_run(run: Path, settings: list[tuple[float, float]], work: Path) -> list[dict]:
+    """Per setting: the restored photographs' track-slope reduction (all, near, far tracks)."""
+    import torch
+
+    from seathru.eval.track_slope import colour_slope_summary, far_tracks
+    from seathru.io import tracks
+    from seathru.io.cameras import read_cameras
+    from seathru.io.model import load_model
+    from seathru.nerf.inference import frame_renderer
+    from seathru.steps.render import render_dataset
+
+    torch.set_num_threads(2)
+    cameras = read_cameras(run / "poses" / "cameras.json")
+    obs = tracks.track_observations(cameras, cameras.root / tracks.SPARSE_DIR)
+    far = far_tracks(obs.track_ids, obs.ranges)
+    render_fn = frame_renderer(load_model(run / "train" / "model.pt", torch.device("cpu")))
+    rows = []
+    for setting in settings:
+        out = work / f"{run.name}_{setting[0]:g}_{setting[1]:g}"
+        render_dataset(render_fn, cameras, out, {"path_frames": 0, "photos": {
+            "restore": "all", "max_gain": setting[0], "detail_scale": setting[1]}})
+        source, photo = tracks.restored_photo_colours(out, cameras, obs)
+        row = {"run": run.name, "setting": setting}
+        for name, keep in (("all", np.ones(len(far), bool)), ("near", ~far), ("far", far)):
+            summary = colour_slope_summary(obs.track_ids[keep], obs.ranges[keep], source[keep],
+                                           photo[keep])
+            row[name] = {key: summary[key] for key in ("reduction", "reduction_overall")}
+            row[name]["input"], row[name]["restored"] = (summary[key]["slope"]
+                                                         for key in ("input", "restored"))
+        rows.append(row)
+    return rows
+
+
+def real_lines(rows: list[dict]) -> list[str]:
+    if not rows:
+        return []
+    lines = ["", "Real dives: the slope of log colour against range along the COLMAP tracks, "
+             "input and restored photographs averaged over the evaluate step's window, and the "
+             "share of the input's slope removed (overall: 1 - sum |restored| / sum |input|).",
+             "", "| run | max_gain, detail_scale | input slope (R, G, B) | restored photographs "
+             "| removed, all tracks (R, G, B; overall) | nearest 90% | farthest 10% |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        slope = (lambda v: ", ".join(f"{x:.3f}" for x in v))
+        share = (lambda v: f"{100 * v:.0f}%")
+        lines.append(f"| {r['run']} | {r['setting'][0]:g}, {r['setting'][1]:g} | "
+                     f"{slope(r['all']['input'])} | {slope(r['all']['restored'])} | "
+                     + ", ".join(share(v) for v in r["all"]["reduction"])
+                     + f" ({share(r['all']['reduction_overall'])}) | "
+                     f"{share(r['near']['reduction_overall'])} | "
+                     f"{share(r['far']['reduction_overall'])} |")
+    return lines
+
+
+def psnr_lines(rows: list[dict], settings: list[tuple[float, float]]) -> list[str]:
+    if not rows:
+        return []
+    lines = ["PSNR (linear, dB) against the clean truth on the held-out views, as the evaluate "
              "step scores them: the model's restored render, and the view's photograph "
              "restored through the render, per largest gain (`render.photos.max_gain`) and "
              "detail scale (`render.photos.detail_scale`, 0: the whole residual); all pixels "
@@ -73,25 +173,25 @@ def write_results(rows: list[dict], settings: list[tuple[float, float]], out: Pa
              + " | ".join(f"photo, gain {g:g}, detail {d:g}" for g, d in settings) + " |",
              "|---|---|---|" + "---|" * len(settings)]
     keyed = {(r["run"], r["view"], r["setting"]): r for r in rows}
+    pair = (lambda r, prefix: f"{r[prefix]:.2f} / {r[prefix + '_covered']:.2f}")
     for run, view in dict.fromkeys((r["run"], r["view"]) for r in rows):
-        first = keyed[(run, view, settings[0])]
-        cells = [f"{first['restored_psnr_linear']:.2f} / "
-                 f"{first['restored_psnr_linear_covered']:.2f}"]
-        for setting in settings:
-            r = keyed[(run, view, setting)]
-            cells.append(f"{r['photo_restored_psnr_linear']:.2f} / "
-                         f"{r['photo_restored_psnr_linear_covered']:.2f}")
+        cells = [pair(keyed[(run, view, settings[0])], "restored_psnr_linear")]
+        cells += [pair(keyed[(run, view, s)], "photo_restored_psnr_linear") for s in settings]
         lines.append(f"| {run} | {view} | " + " | ".join(cells) + " |")
-    means = ["| mean | | " + " / ".join(
-        f"{np.mean([r[c] for r in rows if r['setting'] == settings[0]]):.2f}"
-        for c in ("restored_psnr_linear", "restored_psnr_linear_covered"))]
-    for setting in settings:
-        means.append(" / ".join(
-            f"{np.mean([r[c] for r in rows if r['setting'] == setting]):.2f}"
-            for c in ("photo_restored_psnr_linear", "photo_restored_psnr_linear_covered")))
-    lines += [" | ".join(means) + " |", "",
-              f"Machine: {cpu_name()}; load {load_average()}; {time.strftime('%Y-%m-%d')}; "
-              f"{seconds:.0f} s.", ""]
+    mean = (lambda setting, prefix: " / ".join(
+        f"{np.nanmean([r[c] for r in rows if r['setting'] == setting]):.2f}"
+        for c in (prefix, prefix + "_covered")))
+    return lines + ["| mean | | " + " | ".join(
+        [mean(settings[0], "restored_psnr_linear")]
+        + [mean(s, "photo_restored_psnr_linear") for s in settings]) + " |"]
+
+
+def write_results(rows: list[dict], settings: list[tuple[float, float]], out: Path,
+                  seconds: float, real: list[dict] | None = None) -> None:
+    lines = ["# Restored photographs (`benchmarks/bench_restored_photo.py`)", "",
+             *psnr_lines(rows, settings), *real_lines(real or []), "",
+             f"Machine: {cpu_name()}; load {load_average()}; {time.strftime('%Y-%m-%d')}; "
+             f"{seconds:.0f} s.", ""]
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(lines))
     print("\n".join(lines))
@@ -99,8 +199,12 @@ def write_results(rows: list[dict], settings: list[tuple[float, float]], out: Pa
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--run", type=Path, action="append", required=True,
+    parser.add_argument("--run", type=Path, action="append", default=[],
                         help="results/<dataset> of a finished simulated workflow run")
+    parser.add_argument("--water-dive", type=Path, action="append", default=[],
+                        help="a trained dive of bench_water.py's work folder")
+    parser.add_argument("--real-run", type=Path, action="append", default=[],
+                        help="results/<dataset> of a finished workflow run of a real dive")
     parser.add_argument("--gains", default="1,2,3,5,10")
     parser.add_argument("--detail-scales", default="0,0.05")
     parser.add_argument("--out", type=Path, default=OUT)
@@ -111,7 +215,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="bench_restored_photo_") as work:
         rows = [row for run in args.run for row in score_run(run.resolve(), settings,
                                                              Path(work))]
-    write_results(rows, settings, args.out, time.time() - started)
+        rows += [row for sim in args.water_dive for row in score_water_dive(sim.resolve(),
+                                                                            settings)]
+        real = [row for run in args.real_run for row in score_real_run(run.resolve(), settings,
+                                                                        Path(work))]
+    write_results(rows, settings, args.out, time.time() - started, real)
 
 
 if __name__ == "__main__":
