@@ -88,13 +88,18 @@ class RayRender:
     direct: Tensor         # (R, 3) attenuated object component
     backscatter: Tensor    # (R, 3) water component
     restored: Tensor       # (R, 3) object colour without water: sum_i w_i c_i
-    direct_share: Tensor   # (R, 3) what of a uniform object colour c reaches the camera:
-                           # direct = direct_share * c, restored = opacity * c
+    direct_weights: Tensor  # (R, S, 3) each interval's share of its object colour in direct
     weights: Tensor        # (R, S) object weights w_i = T_i (1 - exp(-sigma_i d_i))
     transmittance: Tensor  # (R, S+1) object transmittance at each edge, T_0 = 1
     opacity: Tensor        # (R,) sum_i w_i
     depth_mean: Tensor     # (R,) sum_i w_i mid_i / opacity; last edge where opacity ~ 0
     depth_median: Tensor   # (R,) where object opacity 1 - T(t) crosses 0.5; last edge if never
+
+    @property
+    def direct_share(self) -> Tensor:
+        """(R, 3) what of a uniform object colour c reaches the camera: direct =
+        direct_share * c, restored = opacity * c (summed only when asked: inference)."""
+        return self.direct_weights.sum(dim=1)
 
 
 class _OneMinusExpNeg(torch.autograd.Function):
@@ -276,7 +281,6 @@ def render_seathru(sigma_obj: Tensor, rgb_obj: Tensor, t_edges: Tensor, sigma_at
         direct_weights = direct_reach * alpha[..., None]
         medium_weights = medium_reach * _absorbed_fraction(bs3, torch.zeros_like(bs3), delta3)
     direct = (direct_weights * rgb_obj).sum(dim=1)
-    direct_share = direct_weights.sum(dim=1)
 
     medium_share = medium_weights.sum(dim=1)            # (R, 3)
     if water_before:
@@ -304,7 +308,7 @@ def render_seathru(sigma_obj: Tensor, rgb_obj: Tensor, t_edges: Tensor, sigma_at
         direct=direct,
         backscatter=backscatter,
         restored=restored,
-        direct_share=direct_share,
+        direct_weights=direct_weights,
         weights=weights,
         transmittance=transmittance,
         opacity=opacity,
