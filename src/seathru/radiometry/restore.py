@@ -13,11 +13,10 @@ range, backscatter and transmission, and with the NeRF's render as the answer wh
 photograph cannot be divided out.
 
 Only the residual's detail is carried over: its variations over more than ``detail_scale`` of
-the image width are left to the model. A residual that changes slowly across the frame is a
-colour the model's water does not reproduce (on the real d3_reef frames the photographs brighten
-with range far more than the model's full render does); dividing it by the transmission would
-add it to the restored colour, magnified most where the water is thickest, and the restored
-photographs would change with range more than the photographs themselves.
+the image width are left to the model. A residual that changes slowly across the frame is
+often a colour the model's water does not reproduce; dividing it by the transmission would add it
+to the restored colour, magnified most where the water is thickest (measured, with the choice of
+the defaults: docs/water.md, "Restoring the photographs themselves").
 """
 
 from __future__ import annotations
@@ -94,7 +93,7 @@ def restore_photograph(photograph: np.ndarray, render: Mapping[str, np.ndarray],
     # takes the correction to 0
     gain = np.clip(opacity / np.maximum(share, 1e-12), 1.0, max_gain) * opacity
     residual = photograph - full
-    if detail_scale > 0 and residual.ndim == 3:
+    if detail_scale > 0:
         residual = residual - _smooth_part(residual, opacity[..., 0],
                                            detail_scale * residual.shape[1])
     result = restored + gain * residual
