@@ -72,37 +72,22 @@ def score_run(run: Path, settings: list[tuple[float, float]], work: Path) -> lis
 
 
 def score_water_dive(sim: Path, settings: list[tuple[float, float]]) -> list[dict]:
-    """As :func:`score_run`, on a dive of ``bench_water.py`` (true cameras, sensor photos)."""
+    """As :func:`score_run`, on a dive of ``bench_water.py`` (true cameras, sensor photos),
+    scored as that benchmark scores it (``bench_water.held_out_views``)."""
     import torch
 
-    from bench_water import _truth_range, sensor_photo
-    from seathru.eval.truth import training_view_coverage, view_truth_metrics
-    from seathru.io.cameras import read_cameras
-    from seathru.io.images import read_image
+    from bench_water import held_out_views
+    from seathru.eval.truth import view_truth_metrics
     from seathru.io.model import load_model
-    from seathru.nerf.inference import render_frame
     from seathru.radiometry.restore import restore_photograph
 
     torch.set_num_threads(2)
-    cameras = read_cameras(sim / "truth" / "cameras.json")
-    model = load_model(sim / "train_cues" / "model.pt")
-    training = [(f, _truth_range(sim, f, cameras.scale)) for f in cameras.split("train")]
     rows = []
-    for frame in sorted(cameras.split("test"), key=lambda f: f.name):
-        rendered = render_frame(model, frame)
-        view_range = _truth_range(sim, frame, cameras.scale)
-        water = read_image(sim / "truth" / "water" / f"{frame.name}.tiff")
-        photo = sensor_photo(sim, frame.name, water)
-        common = dict(full=rendered["rgb"], restored=rendered["restored"],
-                      depth=rendered["depth"], water=water,
-                      clean=read_image(sim / "truth" / "clean" / f"{frame.name}.tiff"),
-                      truth_depth=np.where(np.isfinite(view_range) & (view_range > 0),
-                                           view_range / cameras.scale, np.inf),
-                      gain=np.ones(3), metres_per_unit=1.0 / cameras.scale,
-                      covered=training_view_coverage(frame, view_range, training) >= 2)
+    for frame, rendered, scoring, photo in held_out_views(
+            sim, load_model(sim / "train_cues" / "model.pt")):
         for setting in settings:
             rows.append({"run": sim.name, "setting": setting, "view": frame.name,
-                         **view_truth_metrics(**common, restored_photo=restore_photograph(
+                         **view_truth_metrics(**scoring, restored_photo=restore_photograph(
                              photo, rendered, *setting))})
     return rows
 

@@ -88,15 +88,39 @@ def train(sim: Path, variant: str, args) -> Path:
     return out
 
 
+def held_out_views(sim: Path, model):
+    """Per held-out view of a dive on its true cameras: ``(frame, render, scoring, photo)``:
+    the model's render (``render_frame``), the arguments of
+    ``seathru.eval.truth.view_truth_metrics`` but the restored photograph (true range and
+    coverage, as the evaluate step scores the demo), and the view's sensor photograph
+    (:func:`sensor_photo`)."""
+    from seathru.eval.truth import training_view_coverage
+    from seathru.io.cameras import read_cameras
+    from seathru.io.images import read_image
+    from seathru.nerf.inference import render_frame
+
+    cameras = read_cameras(sim / "truth" / "cameras.json")
+    training = [(f, _truth_range(sim, f, cameras.scale)) for f in cameras.split("train")]
+    for frame in sorted(cameras.split("test"), key=lambda f: f.name):
+        rendered = render_frame(model, frame)
+        view_range = _truth_range(sim, frame, cameras.scale)
+        water = read_image(sim / "truth" / "water" / f"{frame.name}.tiff")
+        scoring = dict(full=rendered["rgb"], restored=rendered["restored"],
+                       depth=rendered["depth"], water=water,
+                       clean=read_image(sim / "truth" / "clean" / f"{frame.name}.tiff"),
+                       truth_depth=np.where(np.isfinite(view_range) & (view_range > 0),
+                                            view_range / cameras.scale, np.inf),
+                       gain=np.ones(3), metres_per_unit=1.0 / cameras.scale,
+                       covered=training_view_coverage(frame, view_range, training) >= 2)
+        yield frame, rendered, scoring, sensor_photo(sim, frame.name, water)
+
+
 def measure(sim: Path, out: Path) -> dict:
     import torch
 
-    from seathru.eval.truth import training_view_coverage, view_truth_metrics
-    from seathru.io.cameras import read_cameras
-    from seathru.io.images import read_image
+    from seathru.eval.truth import view_truth_metrics
     from seathru.io.model import load_model
     from seathru.io.water import read_truth_water, read_water
-    from seathru.nerf.inference import render_frame
     from seathru.radiometry.restore import restore_photograph
 
     torch.set_num_threads(1)
@@ -106,22 +130,8 @@ def measure(sim: Path, out: Path) -> dict:
     interval = (report.to_dict().get("uncertainty") or {}).get("interval95")
     determined = (report.uncertainty or {}).get("determined")
     model = load_model(out / "model.pt")
-    cameras = read_cameras(sim / "truth" / "cameras.json")
-    training = [(f, _truth_range(sim, f, cameras.scale)) for f in cameras.split("train")]
-    scores = []
-    for frame in cameras.split("test"):
-        rendered = render_frame(model, frame)
-        view_range = _truth_range(sim, frame, cameras.scale)
-        covered = training_view_coverage(frame, view_range, training) >= 2
-        water = read_image(sim / "truth" / "water" / f"{frame.name}.tiff")
-        scores.append(view_truth_metrics(
-            full=rendered["rgb"], restored=rendered["restored"], depth=rendered["depth"],
-            clean=read_image(sim / "truth" / "clean" / f"{frame.name}.tiff"),
-            water=water,
-            truth_depth=np.where(np.isfinite(view_range) & (view_range > 0),
-                                 view_range / cameras.scale, np.inf),
-            gain=np.ones(3), metres_per_unit=1.0 / cameras.scale, covered=covered,
-            restored_photo=restore_photograph(sensor_photo(sim, frame.name, water), rendered)))
+    scores = [view_truth_metrics(**scoring, restored_photo=restore_photograph(photo, rendered))
+              for _, rendered, scoring, photo in held_out_views(sim, model)]
     selection = json.loads((out / "selection.json").read_text())
     from bench_water_intervals import assess_model
 

@@ -46,10 +46,14 @@ class PhotoRestoration:
                                   "within this share of the image width are carried over (0: all)")
 
     def validate(self) -> None:
-        if self.max_gain < 1:
-            raise ValueError(f"max_gain must be >= 1, got {self.max_gain}")
-        if self.detail_scale < 0:
-            raise ValueError(f"detail_scale must be >= 0, got {self.detail_scale}")
+        _check_limits(self.max_gain, self.detail_scale)
+
+
+def _check_limits(max_gain: float, detail_scale: float) -> None:
+    if max_gain < 1:
+        raise ValueError(f"max_gain must be >= 1, got {max_gain}")
+    if detail_scale < 0:
+        raise ValueError(f"detail_scale must be >= 0, got {detail_scale}")
 
 
 def restore_photograph(photograph: np.ndarray, render: Mapping[str, np.ndarray],
@@ -78,10 +82,7 @@ def restore_photograph(photograph: np.ndarray, render: Mapping[str, np.ndarray],
         images = render_frame(model, frame)
         clean_photo = restore_photograph(read_image(cameras.image_path(frame)), images)
     """
-    if max_gain < 1.0:
-        raise ValueError(f"max_gain must be >= 1, got {max_gain}")
-    if detail_scale < 0:
-        raise ValueError(f"detail_scale must be >= 0, got {detail_scale}")
+    _check_limits(max_gain, detail_scale)
     photograph = np.asarray(photograph, dtype=np.float64)
     full = np.asarray(render["rgb"], dtype=np.float64)
     if photograph.shape != full.shape:
