@@ -14,7 +14,9 @@ model misses against a colour its water does not reproduce (which only a real di
 ``--water-dive`` takes a dive of ``bench_water.py``'s work folder instead (``<work>/survey_<water>``:
 true cameras, ``train_cues/model.pt``), whose photographs are the truth with water taken through
 the simulator's sensor again (``bench_water.sensor_photo``), scored as that benchmark scores
-them. ``--real-run`` takes a workflow run of a real dive (``results/d3_reef``): every photograph
+them, and also what limits them (``water_dive_bounds``: the exact restoration of the sensor
+photograph with the true water and range, and the noise-free image restored through the model).
+``--real-run`` takes a workflow run of a real dive (``results/d3_reef``): every photograph
 is restored at each setting and the slope of log colour against range along the COLMAP tracks is
 compared with the input's, both averaged over the evaluate step's window
 (``seathru.io.tracks.restored_photo_colours``), over all tracks, the nearest 90% and the farthest
@@ -90,6 +92,55 @@ def score_water_dive(sim: Path, settings: list[tuple[float, float]]) -> list[dic
                          **view_truth_metrics(**scoring, restored_photo=restore_photograph(
                              photo, rendered, *setting))})
     return rows
+
+
+def water_dive_bounds(sim: Path) -> list[dict]:
+    """What limits the restored photographs of a ``bench_water.py`` dive, per held-out view:
+    the sensor photograph restored exactly (Sea-thru's ``(I - B) / T`` with the true water
+    and the true range: no model error left, only the sensor's noise divided by the
+    transmission), and the noise-free image with water restored through the model at the
+    default settings (no noise, only the model's error)."""
+    import torch
+
+    from bench_restored_error import restore
+    from bench_water import held_out_views
+    from seathru.eval.truth import view_truth_metrics
+    from seathru.io.model import load_model
+    from seathru.io.water import read_truth_water
+    from seathru.radiometry.restore import restore_photograph
+
+    torch.set_num_threads(2)
+    truth = read_truth_water(sim / "truth" / "water.json")
+    rows = []
+    for frame, rendered, scoring, photo in held_out_views(
+            sim, load_model(sim / "train_cues" / "model.pt")):
+        ranges = np.where(np.isfinite(scoring["truth_depth"]), scoring["truth_depth"], 0.0)
+        exact = restore(photo, ranges, truth.sigma_attn, truth.sigma_bs, truth.c_med)
+        row = {"run": sim.name, "view": frame.name}
+        for key, image in (("exact", exact),
+                           ("noise_free", restore_photograph(scoring["water"], rendered))):
+            scores = view_truth_metrics(**scoring, restored_photo=image)
+            row[key] = (scores["photo_restored_psnr_linear"],
+                        scores["photo_restored_psnr_linear_covered"])
+        rows.append(row)
+    return rows
+
+
+def bound_lines(rows: list[dict]) -> list[str]:
+    if not rows:
+        return []
+    lines = ["", "What limits the photographs (`water_dive_bounds`; all / covered, dB): the "
+             "sensor photograph restored exactly with the true water and the true range (only "
+             "its noise, divided by the transmission, is left), and the noise-free image with "
+             "water restored through the model at the default settings (only the model's "
+             "error is left).", "", "| run | view | exact water and range, sensor photograph "
+             "| model, noise-free image |", "|---|---|---|---|"]
+    pair = (lambda v: f"{v[0]:.2f} / {v[1]:.2f}")
+    for r in rows:
+        lines.append(f"| {r['run']} | {r['view']} | {pair(r['exact'])} | "
+                     f"{pair(r['noise_free'])} |")
+    mean = (lambda key: pair(np.nanmean([r[key] for r in rows], axis=0)))
+    return lines + [f"| mean | | {mean('exact')} | {mean('noise_free')} |"]
 
 
 def score_real_run(run: Path, settings: list[tuple[float, float]], work: Path) -> list[dict]:
@@ -172,9 +223,11 @@ def psnr_lines(rows: list[dict], settings: list[tuple[float, float]]) -> list[st
 
 
 def write_results(rows: list[dict], settings: list[tuple[float, float]], out: Path,
-                  seconds: float, real: list[dict] | None = None) -> None:
+                  seconds: float, real: list[dict] | None = None,
+                  bounds: list[dict] | None = None) -> None:
     lines = ["# Restored photographs (`benchmarks/bench_restored_photo.py`)", "",
-             *psnr_lines(rows, settings), *real_lines(real or []), "",
+             *psnr_lines(rows, settings), *bound_lines(bounds or []), *real_lines(real or []),
+             "",
              f"Machine: {cpu_name()}; load {load_average()}; {time.strftime('%Y-%m-%d')}; "
              f"{seconds:.0f} s.", ""]
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -202,9 +255,10 @@ def main() -> None:
                                                              Path(work))]
         rows += [row for sim in args.water_dive for row in score_water_dive(sim.resolve(),
                                                                             settings)]
+        bounds = [row for sim in args.water_dive for row in water_dive_bounds(sim.resolve())]
         real = [row for run in args.real_run for row in score_real_run(run.resolve(), settings,
                                                                         Path(work))]
-    write_results(rows, settings, args.out, time.time() - started, real)
+    write_results(rows, settings, args.out, time.time() - started, real, bounds)
 
 
 if __name__ == "__main__":
