@@ -11,7 +11,7 @@ from seathru.io.cameras import CameraSet, Frame
 from seathru.nerf.capacity import (LEVELS, PLANE_FOOTPRINT_FACTOR, PLANE_LADDER, SceneMeasure,
                                    choose_capacity, expected_rays, measure_scene,
                                    planes_for_footprint, steps_for_passes)
-from seathru.nerf.config import TrainConfig
+from seathru.nerf.config import DEFAULT_STEPS, TrainConfig
 from seathru.nerf.prepare import prepare_run
 
 
@@ -123,6 +123,16 @@ def test_expected_rays_follow_the_tighter_of_steps_and_time():
     by_time = expected_rays(_config(max_minutes=1.0, steps=10**9), "fast", "cpu")
     slower = expected_rays(_config(max_minutes=1.0, steps=10**9), "quality", "cpu")
     assert 0 < slower < by_time < 10**9 * 1024
+
+
+def test_by_default_the_time_budget_alone_sets_the_expected_rays():
+    """steps 0 (the default) puts no step limit under a budget: fifteen minutes on a CPU plan
+    five times the rays of three (with a 6000-step limit a real dive given 15 min planned
+    0.9 passes and stopped after about 5.5 min)."""
+    three, fifteen = (expected_rays(_config(max_minutes=m), "fast", "cpu") for m in (3.0, 15.0))
+    assert fifteen == pytest.approx(5 * three)
+    assert fifteen > 6000 * 1024
+    assert expected_rays(_config(max_minutes=0), "fast", "cpu") == DEFAULT_STEPS * 1024
 
 
 def test_passes_become_steps():

@@ -21,7 +21,8 @@ from seathru.cli import main as cli_main
 from seathru.nerf.inference import render_frame
 from seathru.eval.metrics import psnr
 from seathru import settings
-from seathru.nerf.config import CPU_BATCH_RAYS, GPU_BATCH_RAYS, TrainConfig, resolve_batch_rays
+from seathru.nerf.config import (CPU_BATCH_RAYS, DEFAULT_STEPS, GPU_BATCH_RAYS, TrainConfig,
+                                 resolve_batch_rays)
 from seathru.nerf.model import SeaThruModel, scene_from_frames
 from seathru.nerf.rays import RayDataset
 from seathru.nerf.training import TrainCallbacks, Trainer
@@ -223,6 +224,20 @@ def test_clear_water_switches_the_medium_off(clear_scene, tmp_path):
     assert water["mode"] == "off" and max(water["sigma_bs"]) == 0.0
     assert np.array_equal(rendered["restored"], rendered["rgb"])
     assert float(np.abs(rendered["backscatter"]).max()) == 0.0
+
+
+def test_without_a_step_limit_the_time_budget_stops_the_run(default_scene):
+    default = settings.from_mapping(TrainConfig, {})
+    assert default.steps == 0 and math.isinf(default.step_limit)
+    assert settings.from_mapping(TrainConfig, {"max_minutes": 0}).step_limit == DEFAULT_STEPS
+    assert settings.from_mapping(TrainConfig, {"steps": 50}).step_limit == 50
+    with pytest.raises(settings.SettingsError, match="steps must be >= 0"):
+        settings.from_mapping(TrainConfig, {"steps": -1})
+    trainer = _small_trainer(default_scene, steps=0, max_minutes=0.04)
+    result = trainer.run()
+    assert result.stopped_by == "time" and result.steps > 5
+    assert 0.95 <= trainer._progress() <= 1.2       # the schedules followed the time budget
+    assert result.log[-1]["step"] == result.steps   # the final row is written
 
 
 def test_batch_size_defaults_per_device_and_an_explicit_value_wins():

@@ -110,7 +110,7 @@ def _level_settings(level: str) -> dict[str, Any]:
 def expected_rays(config: TrainConfig, level: str, device_type: str) -> float:
     """Rays the run will train on at ``level``: the step limit and the time budget's steps."""
     batch = config.batch_rays or REFERENCE_BATCH
-    steps = float(config.steps)
+    steps = config.step_limit
     if config.max_minutes and config.max_minutes > 0:
         step_s = STEP_SECONDS.get(device_type, STEP_SECONDS["cpu"])[level]
         step_s *= max(1.0, batch / REFERENCE_BATCH) if device_type == "cpu" else 1.0

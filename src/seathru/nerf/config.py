@@ -9,6 +9,7 @@ baseline is ``field.kind=mlp``, ``sampler.kind=hierarchical``.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -266,6 +267,8 @@ class OptimConfig:
     lr_final_ratio: float = setting(0.05, help="final learning rate / initial")
 
 
+# the step limit of a run without a time budget (``TrainConfig.steps`` 0)
+DEFAULT_STEPS = 6000
 # Settings that do not change the model being trained: a resumed run may change them.
 RUNTIME_KEYS = ("max_minutes", "log_every", "checkpoint_every", "eval_rays", "snapshot_every",
                 "nan_max_retries", "device", "progress", "quality_snapshot_first_s",
@@ -289,7 +292,8 @@ class TrainConfig:
     medium: MediumConfig = section(MediumConfig)
     loss: LossConfig = section(LossConfig)
     optim: OptimConfig = section(OptimConfig)
-    steps: int = setting(6000, help="maximum optimisation steps")
+    steps: int = setting(0, help="maximum optimisation steps; 0: no step limit under a time "
+                                 "budget (max_minutes decides), 6000 without one")
     passes: float = setting(0.0, help="training budget as passes over the training pixels: "
                                       "sets steps to passes x pixels / batch_rays (0 = use "
                                       "steps); max_minutes still applies")
@@ -329,6 +333,14 @@ class TrainConfig:
         return {k: v for k, v in settings.flatten(self.to_dict()).items()
                 if k not in RUNTIME_KEYS}
 
+    @property
+    def step_limit(self) -> float:
+        """The most optimisation steps the run makes: ``steps``; with ``steps`` 0, none under a
+        time budget (``inf``: the budget decides) and :data:`DEFAULT_STEPS` without one."""
+        if self.steps > 0:
+            return float(self.steps)
+        return math.inf if self.max_minutes and self.max_minutes > 0 else float(DEFAULT_STEPS)
+
     def validate(self) -> None:
         f, s = self.field, self.sampler
         if f.kind == "mlp" and s.kind == "occupancy":
@@ -339,7 +351,9 @@ class TrainConfig:
                              "field.stage_starts one per stage after the first")
         if self.passes < 0:
             raise ValueError(f"passes must be >= 0, got {self.passes}")
-        for name, value in (("steps", self.steps), ("sampler.samples_per_ray", s.samples_per_ray),
+        if self.steps < 0:
+            raise ValueError(f"steps must be >= 0, got {self.steps}")
+        for name, value in (("sampler.samples_per_ray", s.samples_per_ray),
                             ("batch_rays", self.batch_rays or 1)):
             if value < 1:
                 raise ValueError(f"{name} must be >= 1, got {value}")

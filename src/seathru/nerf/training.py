@@ -1,9 +1,10 @@
 """The training loop: Adam with warm-up and decay, coarse-to-fine grids, medium model selection,
 a NaN/Inf guard, held-out evaluation, checkpoints. No file I/O: the step passes callbacks.
 
-Progress. Training stops at ``config.steps`` or after ``config.max_minutes``, whichever comes
-first, and every schedule (learning-rate decay, grid upsampling, the medium decision) follows
-``progress = max(step / steps, elapsed / budget)``, so a run cut short by its time budget still
+Progress. Training stops at ``config.step_limit`` steps or after ``config.max_minutes``, whichever
+comes first (by default only the time budget limits it), and every schedule (learning-rate decay,
+grid upsampling, the medium decision) follows ``progress = max(step / step_limit, elapsed /
+budget)``, so a run cut short by its time budget still
 decays its learning rate and reaches the finest grid: the model adapts to the machine it runs on.
 ``elapsed`` is training time: the held-out evaluations for the log are not counted (they are
 also left out of ``wall_time_s`` in the log), the medium trial and checkpoints are.
@@ -74,8 +75,10 @@ class TrainResult:
     rays_per_second: float
 
 
-def log_spaced_steps(limit: int) -> set[int]:
-    """1, 2, 3, 5, 7, 10, 20, 30, 50, 70, 100, ... up to ``limit``."""
+def log_spaced_steps(limit: float) -> set[int]:
+    """1, 2, 3, 5, 7, 10, 20, 30, 50, 70, 100, ... up to ``limit`` (at most 7e9: a run without a
+    step limit)."""
+    limit = min(limit, 7e9)
     steps, decade = set(), 1
     while decade <= limit:
         for m in (1, 2, 3, 5, 7):
@@ -127,7 +130,7 @@ class Trainer:
                                    if requested != "auto" else "the MLP field is view-dependent"}
         self.optimizer = self._build_optimizer()
         self._snapshot = None
-        self._eval_steps = log_spaced_steps(self.config.steps)
+        self._eval_steps = log_spaced_steps(self.config.step_limit)
         self._seen = self._seen_mask(frames)
         self._seen_cache: dict = {}
         self._threads = ThreadTuner(torch.get_num_threads()) if self.device.type == "cpu" \
@@ -339,7 +342,7 @@ class Trainer:
         c = self.config
         budget = c.max_minutes * 60.0 if c.max_minutes and c.max_minutes > 0 else math.inf
         rate = self.step / max(self.elapsed_s, 1e-6)
-        horizon = min(float(c.steps), rate * budget)
+        horizon = min(c.step_limit, rate * budget)
         return int(min(500, max(10, share * horizon)))
 
     def _race(self, setups: dict[str, Callable[[], None]], trial: int
@@ -681,7 +684,7 @@ class Trainer:
     def _progress(self) -> float:
         c = self.config
         budget = c.max_minutes * 60.0 if c.max_minutes and c.max_minutes > 0 else math.inf
-        return max(self.step / c.steps, self.elapsed_s / budget)
+        return max(self.step / c.step_limit, self.elapsed_s / budget)
 
     def _say(self, text: str) -> None:
         if self.callbacks.message:
@@ -744,7 +747,7 @@ class Trainer:
         next_quality = c.quality_snapshot_first_s
         while 0 < next_quality <= self.elapsed_s:
             next_quality *= 2.0
-        while self.step < c.steps:
+        while self.step < c.step_limit:
             self.elapsed_s = base_elapsed + (time.perf_counter() - run_start - self._eval_seconds)
             if self.elapsed_s >= budget:
                 stopped_by = "time"
@@ -799,7 +802,7 @@ class Trainer:
                     "loss": loss_value, "psnr": psnr_from_mse(mse_value),
                     "rays_per_s": rate * c.batch_rays, "medium": model.medium.mode,
                     "progress": self._progress()})
-            final = self.step >= c.steps
+            final = self.step >= c.step_limit
             is_eval = self.step in self._eval_steps or final
             if is_eval or self.step % c.log_every == 0:
                 test = self.test_psnr() if is_eval else None

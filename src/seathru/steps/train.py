@@ -98,7 +98,7 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
              [round(v, 3) for v in scene["box_min"]], [round(v, 3) for v in scene["box_max"]])
 
     checkpoint_path = Path(checkpoint_dir) / CHECKPOINT_NAME
-    bar = _progress_bar(config) if config.progress else None
+    bar = _progress_bar(prepared.config) if config.progress else None
 
     def progress(step: int, stats: dict) -> None:
         if bar is not None:
@@ -164,7 +164,7 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
 def _progress_bar(config: Settings):
     from tqdm import tqdm
 
-    # a log file (Snakemake redirects stderr) gets one line every 30 s, a terminal every 1 s
-    interactive = sys.stderr.isatty()
-    return tqdm(total=config.steps, desc="train", unit="step", dynamic_ncols=True,
-                mininterval=1.0 if interactive else 30.0)
+    # a log file (Snakemake's stderr) gets a line every 30 s; no total where time alone limits
+    return tqdm(total=int(config.step_limit) if config.step_limit < float("inf") else None,
+                desc="train", unit="step", dynamic_ncols=True,
+                mininterval=1.0 if sys.stderr.isatty() else 30.0)
