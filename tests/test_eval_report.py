@@ -12,8 +12,8 @@ import pytest
 
 from seathru.eval import summary as dataset_summary
 from seathru.eval.report import (NOT_RUN, DatasetRecord, StepLog, diagnose_failure, medium_name,
-                                 psnr_rise, render_html, stopped_by, summary_table,
-                                 training_warnings)
+                                 held_out_plateau, psnr_rise, render_html, stopped_by,
+                                 summary_table, training_warnings)
 from seathru.eval.summary import EvaluationSummary, RenderSpeed, TrainingSummary
 from seathru.steps import STEP_ORDER
 
@@ -165,6 +165,28 @@ def test_training_warnings_for_water_off_and_rising_psnr():
                              _log([0.0, 80.0, 100.0], test=[10.0, 22.9, 23.0])) == []
     assert training_warnings({"requested": "auto", "final_mode": "global"}, rising,
                              rising_db=5.0) == []
+
+
+def test_a_held_out_psnr_that_stops_early_while_training_goes_on_is_flagged():
+    # d3_reef's 15-min run, thinned: held-out flat at 16.4-16.8 dB from 7 s on
+    reef = _log([0.06, 3.9, 7.1, 34.3, 129.1, 481.9, 900.0],
+                test=[14.4, 16.46, 16.74, 16.63, 16.61, 16.78, 16.68],
+                train=[14.1, 17.58, 17.94, 18.53, 19.46, 21.16, 21.57])
+    plateau = held_out_plateau(reef)
+    assert plateau["reached_s"] == pytest.approx(7.1)
+    assert plateau["train_rise_db"] == pytest.approx(21.57 - 17.94)
+    found = training_warnings({"requested": "auto", "final_mode": "veiling"}, reef, "time")
+    assert [w["code"] for w in found] == ["held_out_plateau"]
+    assert "16.78 dB" in found[0]["message"] and "7.1 s of 900 s" in found[0]["message"]
+    # a held-out PSNR that rises with the training one (the demo): no warning
+    demo = _log([0.1, 10.0, 60.0, 120.0, 180.0], test=[14.0, 22.0, 26.0, 27.6, 28.4],
+                train=[14.0, 22.5, 27.0, 28.5, 29.5])
+    assert held_out_plateau(demo) is None
+    # an early plateau while the training PSNR also stalls: converged, not overfitting
+    stalled = _log([0.1, 5.0, 60.0, 180.0], test=[14.0, 20.0, 20.1, 20.0],
+                   train=[14.0, 21.0, 21.5, 21.9])
+    assert held_out_plateau(stalled) is None
+    assert held_out_plateau(None) is None and held_out_plateau(_log([0.0, 1.0], test=[1, 2])) is None
 
 
 def test_summary_table_and_html_mark_datasets_with_warnings():

@@ -283,6 +283,48 @@ def psnr_rise(train_log: pd.DataFrame | None, window: float = 0.2) -> dict | Non
     return None
 
 
+def held_out_plateau(train_log: pd.DataFrame | None, within_db: float = 0.25,
+                     early: float = 0.1, train_rise_db: float = 2.0) -> dict | None:
+    """Whether the held-out PSNR stopped rising early while the training PSNR kept rising.
+
+    The held-out PSNR reached within ``within_db`` of its best in the first ``early`` share of
+    the training time, and the training PSNR rose more than ``train_rise_db`` after that: the
+    model went on fitting the training views without getting better at new ones, which more
+    training time does not mend (on the real d3_reef frames: held-out 17 dB from the first 7 s
+    of a 15-min run on, training 18 to 22 dB; ``benchmarks/results/reef_15min.md``).
+
+    Returns:
+        ``{"held_out_best_db", "held_out_final_db", "reached_s", "to_s", "train_rise_db"}``, or
+        None when the log does not show it (or lacks the columns).
+
+    Example::
+
+        held_out_plateau(pd.DataFrame({"wall_time_s": [0, 5, 50, 100],
+                                       "test_psnr": [10, 17, 17.1, 17], "train_psnr": [10, 18, 20, 22]}))
+        # -> {"reached_s": 5.0, "train_rise_db": 4.0, ...}
+    """
+    if train_log is None or not {"wall_time_s", "test_psnr", "train_psnr"} <= set(train_log):
+        return None
+    numeric = train_log[["wall_time_s", "test_psnr", "train_psnr"]].apply(pd.to_numeric,
+                                                                          errors="coerce")
+    held = numeric[["wall_time_s", "test_psnr"]].dropna()
+    fitted = numeric[["wall_time_s", "train_psnr"]].dropna()
+    if len(held) < 3 or len(fitted) < 2:
+        return None
+    times, values = held["wall_time_s"].to_numpy(float), held["test_psnr"].to_numpy(float)
+    total = float(times[-1])
+    reached = float(times[np.argmax(values >= values.max() - within_db)])
+    if total <= 0 or reached > early * total:
+        return None
+    train_times = fitted["wall_time_s"].to_numpy(float)
+    train_values = fitted["train_psnr"].to_numpy(float)
+    rise = float(train_values[-1] - np.interp(reached, train_times, train_values))
+    if rise <= train_rise_db:
+        return None
+    return {"held_out_best_db": float(values.max()), "held_out_final_db": float(values[-1]),
+            "reached_s": reached, "to_s": total, "train_rise_db": rise}
+
+
 def _warning(code: str, message: str, **details) -> dict:
     return {"step": "train", "code": code, "message": message, "details": details}
 
@@ -297,6 +339,9 @@ def training_warnings(selection, train_log: pd.DataFrame | None, stopped: str | 
         train_log: ``train_log.csv``; stopped: ``steps`` / ``time`` / None (:func:`stopped_by`).
         rising_db, window: training is far from converged when the PSNR rose more than
             ``rising_db`` over the last ``window`` share of its time (:func:`psnr_rise`).
+
+    Also warns when the held-out PSNR stopped rising early while the training PSNR went on
+    (:func:`held_out_plateau`).
     """
     found = []
     if isinstance(selection, dict):
@@ -321,6 +366,16 @@ def training_warnings(selection, train_log: pd.DataFrame | None, stopped: str | 
             f"{window:.0%} of training ({rise['from_s']:.3g} s to {rise['to_s']:.3g} s, "
             f"> {rising_db:g} dB): {advice}", stopped_by=stopped, threshold_db=rising_db,
             **rise))
+    plateau = held_out_plateau(train_log)
+    if plateau is not None:
+        found.append(_warning(
+            "held_out_plateau", f"the held-out PSNR was within 0.25 dB of its best "
+            f"({plateau['held_out_best_db']:.2f} dB) after {plateau['reached_s']:.3g} s of "
+            f"{plateau['to_s']:.3g} s while the training PSNR rose another "
+            f"{plateau['train_rise_db']:.1f} dB: the model fits the training views without "
+            f"getting better at new ones, and more training time will not change that (too "
+            f"few views of each surface, or camera poses that disagree); the novel views and "
+            f"the water rest on what the training views alone show", **plateau))
     return found
 
 
