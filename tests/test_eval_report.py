@@ -186,7 +186,8 @@ def test_a_held_out_psnr_that_stops_early_while_training_goes_on_is_flagged():
     stalled = _log([0.1, 5.0, 60.0, 180.0], test=[14.0, 20.0, 20.1, 20.0],
                    train=[14.0, 21.0, 21.5, 21.9])
     assert held_out_plateau(stalled) is None
-    assert held_out_plateau(None) is None and held_out_plateau(_log([0.0, 1.0], test=[1, 2])) is None
+    assert held_out_plateau(None) is None
+    assert held_out_plateau(_log([0.0, 1.0], test=[1, 2])) is None
 
 
 def test_summary_table_and_html_mark_datasets_with_warnings():

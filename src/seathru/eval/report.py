@@ -294,13 +294,14 @@ def held_out_plateau(train_log: pd.DataFrame | None, within_db: float = 0.25,
     of a 15-min run on, training 18 to 22 dB; ``benchmarks/results/reef_15min.md``).
 
     Returns:
-        ``{"held_out_best_db", "held_out_final_db", "reached_s", "to_s", "train_rise_db"}``, or
-        None when the log does not show it (or lacks the columns).
+        ``{"held_out_best_db", "held_out_final_db", "within_db", "reached_s", "to_s",
+        "train_rise_db"}``, or None when the log does not show it (or lacks the columns).
 
     Example::
 
         held_out_plateau(pd.DataFrame({"wall_time_s": [0, 5, 50, 100],
-                                       "test_psnr": [10, 17, 17.1, 17], "train_psnr": [10, 18, 20, 22]}))
+                                       "test_psnr": [10, 17, 17.1, 17],
+                                       "train_psnr": [10, 18, 20, 22]}))
         # -> {"reached_s": 5.0, "train_rise_db": 4.0, ...}
     """
     if train_log is None or not {"wall_time_s", "test_psnr", "train_psnr"} <= set(train_log):
@@ -322,7 +323,7 @@ def held_out_plateau(train_log: pd.DataFrame | None, within_db: float = 0.25,
     if rise <= train_rise_db:
         return None
     return {"held_out_best_db": float(values.max()), "held_out_final_db": float(values[-1]),
-            "reached_s": reached, "to_s": total, "train_rise_db": rise}
+            "within_db": within_db, "reached_s": reached, "to_s": total, "train_rise_db": rise}
 
 
 def _warning(code: str, message: str, **details) -> dict:
@@ -369,9 +370,10 @@ def training_warnings(selection, train_log: pd.DataFrame | None, stopped: str | 
     plateau = held_out_plateau(train_log)
     if plateau is not None:
         found.append(_warning(
-            "held_out_plateau", f"the held-out PSNR was within 0.25 dB of its best "
-            f"({plateau['held_out_best_db']:.2f} dB) after {plateau['reached_s']:.3g} s of "
-            f"{plateau['to_s']:.3g} s while the training PSNR rose another "
+            "held_out_plateau", f"the held-out PSNR was within {plateau['within_db']:g} dB of "
+            f"its best ({plateau['held_out_best_db']:.2f} dB) after "
+            f"{plateau['reached_s']:.3g} s of {plateau['to_s']:.3g} s while the training PSNR "
+            f"rose another "
             f"{plateau['train_rise_db']:.1f} dB: the model fits the training views without "
             f"getting better at new ones, and more training time will not change that (too "
             f"few views of each surface, or camera poses that disagree); the novel views and "

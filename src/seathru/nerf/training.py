@@ -1,11 +1,11 @@
 """The training loop: Adam with warm-up and decay, coarse-to-fine grids, medium model selection,
 a NaN/Inf guard, held-out evaluation, checkpoints. No file I/O: the step passes callbacks.
 
-Progress. Training stops at ``config.step_limit`` steps or after ``config.max_minutes``, whichever
-comes first (by default only the time budget limits it), and every schedule (learning-rate decay,
-grid upsampling, the medium decision) follows ``progress = max(step / step_limit, elapsed /
-budget)``, so a run cut short by its time budget still
-decays its learning rate and reaches the finest grid: the model adapts to the machine it runs on.
+Progress. Training stops at ``config.step_limit`` steps or after ``config.max_minutes``,
+whichever comes first (by default only the time budget limits it), and every schedule
+(learning-rate decay, grid upsampling, the medium decision) follows ``progress = max(step /
+step_limit, elapsed / budget)``, so a run cut short by its time budget still decays its learning
+rate and reaches the finest grid: the model adapts to the machine it runs on.
 ``elapsed`` is training time: the held-out evaluations for the log are not counted (they are
 also left out of ``wall_time_s`` in the log), the medium trial and checkpoints are.
 
