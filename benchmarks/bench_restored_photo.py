@@ -14,8 +14,8 @@ model misses against a colour its water does not reproduce (which only a real di
 ``--water-dive`` takes a dive of ``bench_water.py``'s work folder instead (``<work>/survey_<water>``:
 true cameras, ``train_cues/model.pt``), whose photographs are the truth with water taken through
 the simulator's sensor again (``bench_water.sensor_photo``), scored as that benchmark scores
-them, and also what limits them (``water_dive_bounds``: the exact restoration of the sensor
-photograph with the true water and range, and the noise-free image restored through the model).
+them, and also what limits them: the exact restoration of the sensor photograph with the true
+water and range, and the noise-free image restored through the model.
 ``--real-run`` takes a workflow run of a real dive (``results/d3_reef``): every photograph
 is restored at each setting and the slope of log colour against range along the COLMAP tracks is
 compared with the input's, both averaged over the evaluate step's window
@@ -73,33 +73,18 @@ def score_run(run: Path, settings: list[tuple[float, float]], work: Path) -> lis
     return rows
 
 
-def score_water_dive(sim: Path, settings: list[tuple[float, float]]) -> list[dict]:
+def score_water_dive(sim: Path, settings: list[tuple[float, float]]
+                     ) -> tuple[list[dict], list[dict]]:
     """As :func:`score_run`, on a dive of ``bench_water.py`` (true cameras, sensor photos),
-    scored as that benchmark scores it (``bench_water.held_out_views``)."""
-    import torch
+    scored as that benchmark scores it (``bench_water.held_out_views``); and, per held-out view,
+    what limits its restored photographs: the sensor photograph restored exactly (Sea-thru's
+    ``(I - B) / T`` with the true water and the true range: no model error left, only the
+    sensor's noise divided by the transmission), and the noise-free image with water restored
+    through the model at the default settings (no noise, only the model's error).
 
-    from bench_water import held_out_views
-    from seathru.eval.truth import view_truth_metrics
-    from seathru.io.model import load_model
-    from seathru.radiometry.restore import restore_photograph
-
-    torch.set_num_threads(2)
-    rows = []
-    for frame, rendered, scoring, photo in held_out_views(
-            sim, load_model(sim / "train_cues" / "model.pt")):
-        for setting in settings:
-            rows.append({"run": sim.name, "setting": setting, "view": frame.name,
-                         **view_truth_metrics(**scoring, restored_photo=restore_photograph(
-                             photo, rendered, *setting))})
-    return rows
-
-
-def water_dive_bounds(sim: Path) -> list[dict]:
-    """What limits the restored photographs of a ``bench_water.py`` dive, per held-out view:
-    the sensor photograph restored exactly (Sea-thru's ``(I - B) / T`` with the true water
-    and the true range: no model error left, only the sensor's noise divided by the
-    transmission), and the noise-free image with water restored through the model at the
-    default settings (no noise, only the model's error)."""
+    Returns:
+        the rows per view and setting, and the bounds per view (:func:`bound_lines`).
+    """
     import torch
 
     from bench_restored_error import restore
@@ -111,25 +96,29 @@ def water_dive_bounds(sim: Path) -> list[dict]:
 
     torch.set_num_threads(2)
     truth = read_truth_water(sim / "truth" / "water.json")
-    rows = []
+    rows, bounds = [], []
     for frame, rendered, scoring, photo in held_out_views(
             sim, load_model(sim / "train_cues" / "model.pt")):
+        for setting in settings:
+            rows.append({"run": sim.name, "setting": setting, "view": frame.name,
+                         **view_truth_metrics(**scoring, restored_photo=restore_photograph(
+                             photo, rendered, *setting))})
         ranges = np.where(np.isfinite(scoring["truth_depth"]), scoring["truth_depth"], 0.0)
         exact = restore(photo, ranges, truth.sigma_attn, truth.sigma_bs, truth.c_med)
-        row = {"run": sim.name, "view": frame.name}
+        bound = {"run": sim.name, "view": frame.name}
         for key, image in (("exact", exact),
                            ("noise_free", restore_photograph(scoring["water"], rendered))):
             scores = view_truth_metrics(**scoring, restored_photo=image)
-            row[key] = (scores["photo_restored_psnr_linear"],
-                        scores["photo_restored_psnr_linear_covered"])
-        rows.append(row)
-    return rows
+            bound[key] = (scores["photo_restored_psnr_linear"],
+                          scores["photo_restored_psnr_linear_covered"])
+        bounds.append(bound)
+    return rows, bounds
 
 
 def bound_lines(rows: list[dict]) -> list[str]:
     if not rows:
         return []
-    lines = ["", "What limits the photographs (`water_dive_bounds`; all / covered, dB): the "
+    lines = ["", "What limits the photographs (all / covered, dB): the "
              "sensor photograph restored exactly with the true water and the true range (only "
              "its noise, divided by the transmission, is left), and the noise-free image with "
              "water restored through the model at the default settings (only the model's "
@@ -253,9 +242,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="bench_restored_photo_") as work:
         rows = [row for run in args.run for row in score_run(run.resolve(), settings,
                                                              Path(work))]
-        rows += [row for sim in args.water_dive for row in score_water_dive(sim.resolve(),
-                                                                            settings)]
-        bounds = [row for sim in args.water_dive for row in water_dive_bounds(sim.resolve())]
+        bounds = []
+        for sim in args.water_dive:
+            dive_rows, dive_bounds = score_water_dive(sim.resolve(), settings)
+            rows += dive_rows
+            bounds += dive_bounds
         real = [row for run in args.real_run for row in score_real_run(run.resolve(), settings,
                                                                         Path(work))]
     write_results(rows, settings, args.out, time.time() - started, real, bounds)
