@@ -236,7 +236,7 @@ def test_without_a_step_limit_the_time_budget_stops_the_run(default_scene):
     trainer = _small_trainer(default_scene, steps=0, max_minutes=0.04)
     result = trainer.run()
     assert result.stopped_by == "time" and result.steps > 5
-    assert 0.95 <= trainer._progress() <= 1.2       # the schedules followed the time budget
+    assert trainer._progress() >= 1.0       # the schedules ran to their end on the budget
     assert result.log[-1]["step"] == result.steps   # the final row is written
 
 
