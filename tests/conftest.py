@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import atexit
 import os
 import shutil
 import subprocess
@@ -29,6 +30,7 @@ def _skip_an_unreachable_slurm_controller() -> None:
     except (OSError, subprocess.TimeoutExpired):
         pass
     folder = Path(tempfile.mkdtemp(prefix="seathru_tests_no_slurm_"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
     (folder / "scontrol").write_text("#!/bin/sh\nexit 1\n")
     (folder / "scontrol").chmod(0o755)
     os.environ["PATH"] = f"{folder}{os.pathsep}{os.environ.get('PATH', '')}"
