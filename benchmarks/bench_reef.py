@@ -9,8 +9,9 @@ Reads finished workflow runs of a real dive (default: the d3_reef runs of
   (``seathru.radiometry.open_water``) and the share of those the model renders with object
   opacity below 0.1 (``render/test/<view>/opacity.tiff``; goal: at least 90%);
 - the slope of log colour against range along COLMAP tracks in the input images and in the
-  restored renders (``evaluate/summary.json`` ``track_colour_slope`` where the evaluate step
-  wrote it; goal: the restored slope at least 70% smaller);
+  restored renders, each observation's colour the mean over its window
+  (``seathru.io.tracks.window_samples``; ``evaluate/summary.json`` ``track_colour_slope``
+  where the evaluate step wrote it; goal: the restored slope at least 70% smaller);
 - held-out PSNR;
 - the same reduction for the nearest 90% of the tracks and for the farthest 10% (by each
   track's median range): the far tracks' ranges spread the most, so they weigh most in the
@@ -76,7 +77,7 @@ def track_scores(run: Path, cameras_path: Path) -> dict:
     from seathru.eval.track_slope import colour_slope_summary, far_tracks
     from seathru.io.model import load_model
     from seathru.io.tracks import (SPARSE_DIR, opacity_in_front, rendered_colours,
-                                   track_observations)
+                                   track_observations, window_colours, window_samples)
 
     cameras = read_cameras(cameras_path)
     model_path = run / "train" / "model.pt"
@@ -85,17 +86,19 @@ def track_scores(run: Path, cameras_path: Path) -> dict:
                 "reproduced": None, "followed": None}
     torch.set_num_threads(1)
     obs = track_observations(cameras, cameras.root / SPARSE_DIR)
+    points = window_samples(cameras, obs)
+    observed = window_colours(cameras, obs, points)
     model = load_model(model_path)
     with torch.no_grad():
         fog = opacity_in_front(model, cameras, obs)
-        rendered = rendered_colours(model, cameras, obs)
+        rendered = rendered_colours(model, cameras, obs, points)
     far = obs.ranges >= np.quantile(obs.ranges, 0.75)
     far_track = far_tracks(obs.track_ids, obs.ranges)
     scores = {}
     for name, keep in (("near", ~far_track), ("far", far_track),
                        ("all", np.ones(len(obs.rows), bool))):
         summary = colour_slope_summary(obs.track_ids[keep], obs.ranges[keep],
-                                       obs.observed[keep], rendered["restored"][keep],
+                                       observed[keep], rendered["restored"][keep],
                                        rendered["rgb"][keep])
         scores[f"reduction_{name}"] = summary.get("reduction")
         if name == "all":
@@ -159,7 +162,10 @@ def main() -> None:
              "pixels that show open water in the photograph (smooth, reaching the top of the "
              f"frame); empty: rendered with object opacity below {EMPTY_OPACITY:g} (goal >= "
              "90%). Track slope: change of log colour per unit of range (COLMAP's) along "
-             "COLMAP tracks, input photographs vs restored renders (goal: >= 70% smaller). Fog: "
+             "COLMAP tracks, input photographs vs restored renders, each observation's colour "
+             "the mean over a window 2% of the image width across at the track's median range, "
+             "scaled by median range / range (`seathru.io.tracks.window_samples`: the same patch "
+             "of surface in every view; from session 25) (goal: >= 70% smaller). Fog: "
              "object opacity in front of the tracked surfaces (before 0.8 of the point's "
              "range), all observations / the farthest quarter. Reduction by range: the nearest "
              "90% of tracks / the farthest 10% (each track's median range). Followed: the full "
@@ -169,8 +175,8 @@ def main() -> None:
              "does not follow the input's slope takes it out of the restored render whether or "
              "not it removed the water. Restored photographs: the render step's "
              "`photos/<view>.tiff` (the photographs with the water taken out through the model, "
-             "`seathru.radiometry.restore`) against the input, both averaged over a window 2% "
-             "of the image width across around each observation (`evaluate/summary.json`): "
+             "`seathru.radiometry.restore`) against the input, over the same windows "
+             "(`evaluate/summary.json`): "
              "reduction over all tracks (R, G, B; overall) / nearest 90% / farthest 10% "
              "(overall).", "",
              "| run | capacity | medium | open water (% of pixels) | of it empty (%) | "

@@ -222,9 +222,13 @@ def test_rendered_colours_come_from_the_ray_of_each_observations_pixel(tmp_path,
         np.testing.assert_allclose(colour, dirs[row * frame.width + col], atol=1e-6)
 
 
-def test_restored_photo_colours_are_read_at_each_observations_pixel(tmp_path, monkeypatch):
-    """Photographs holding (row, col, frame) at each pixel, at full and at half size."""
+def test_restored_photo_colours_are_the_mean_over_each_observations_window(tmp_path, monkeypatch):
+    """Photographs holding (row, col, frame) at each pixel, at full and at half size: the mean
+    over a window of a linear ramp is the ramp at the window's centre, the observation's pixel
+    centre in the photograph's own pixel coordinates."""
     cameras, obs = _tracked_scene(tmp_path, monkeypatch)
+    points = tracks_io.window_samples(cameras, obs)
+    half_side = np.abs(points - points.mean(1, keepdims=True)).max((1, 2))
     for shrink in (1, 2):
         renders = tmp_path / f"render{shrink}"
         for index, frame in enumerate(cameras.frames):
@@ -234,19 +238,72 @@ def test_restored_photo_colours_are_read_at_each_observations_pixel(tmp_path, mo
                              np.stack([rows, cols, np.full_like(rows, index)], -1)
                              .astype(np.float32))
         source, photo = tracks_io.restored_photo_colours(renders, cameras, obs)
-        # a window's mean of a linear ramp is the ramp, away from the edges
-        inner = np.ones(len(obs.rows), bool)
-        for index, frame in enumerate(cameras.frames):
-            here = obs.frames == index
-            inner &= ~here | ((obs.rows >= 2 * shrink) & (obs.rows < frame.height - 2 * shrink)
-                              & (obs.cols >= 2 * shrink) & (obs.cols < frame.width - 2 * shrink))
+        # windows inside the image (no sample clipped at its edge)
+        inner = ((obs.rows + 0.5 - half_side >= 1) & (obs.rows + 0.5 + half_side <= 59)
+                 & (obs.cols + 0.5 - half_side >= 1) & (obs.cols + 0.5 + half_side <= 79))
         assert inner.sum() > 20
-        np.testing.assert_allclose(photo[inner], np.stack([obs.rows // shrink, obs.cols // shrink,
-                                                           obs.frames], -1)[inner], atol=1e-4)
-        if shrink == 1:   # the input images hold (row, col, frame) too
-            np.testing.assert_allclose(source[inner], photo[inner], atol=1e-4)
+        expected = np.stack([(obs.rows + 0.5) / shrink - 0.5, (obs.cols + 0.5) / shrink - 0.5,
+                             obs.frames], -1)
+        np.testing.assert_allclose(photo[inner], expected[inner], atol=1e-4)
+        # the input images hold (row, col, frame) at full size: the same windows
+        np.testing.assert_allclose(source[inner], (expected if shrink == 1 else np.stack(
+            [obs.rows + 0.0, obs.cols + 0.0, obs.frames], -1))[inner], atol=1e-4)
+        np.testing.assert_allclose(source, tracks_io.window_colours(cameras, obs, points),
+                                   atol=1e-6)
     (tmp_path / "render1" / "photos" / f"{cameras.frames[0].name}.tiff").unlink()
     assert tracks_io.restored_photo_colours(tmp_path / "render1", cameras, obs) is None
+
+
+def test_window_spans_the_same_patch_of_surface_in_every_view(tmp_path, monkeypatch):
+    """The window's side is TRACK_WINDOW of the frame's width at the track's median range and
+    shrinks as 1 / range; its samples are a regular grid centred on the observation's pixel."""
+    cameras, obs = _tracked_scene(tmp_path, monkeypatch)
+    points = tracks_io.window_samples(cameras, obs, window=0.05, grid=4)
+    assert points.shape == (len(obs.rows), 16, 2)
+    xs, ys = points[..., 0], points[..., 1]
+    clipped = (xs <= 0.5) | (xs >= 79.5) | (ys <= 0.5) | (ys >= 59.5)
+    free = ~clipped.any(1)
+    assert free.sum() > 20
+    side = (xs.max(1) - xs.min(1)) * 4 / 3          # outer samples are 3/4 of the side apart
+    np.testing.assert_allclose((ys.max(1) - ys.min(1))[free] * 4 / 3, side[free])
+    np.testing.assert_allclose(xs.mean(1)[free], obs.cols[free] + 0.5)
+    np.testing.assert_allclose(ys.mean(1)[free], obs.rows[free] + 0.5)
+    for track in np.unique(obs.track_ids):
+        mine = (obs.track_ids == track) & free
+        footprint = side[mine] * obs.ranges[mine]       # side (pixels) x range: the patch
+        median = np.median(obs.ranges[obs.track_ids == track])
+        np.testing.assert_allclose(footprint, 0.05 * 80 * median, rtol=1e-9)
+
+
+def test_window_colours_take_out_the_bias_of_a_blob_seen_at_different_ranges(
+        tmp_path, monkeypatch):
+    """A dark dot on a grey surface: seen far, its pixel averages the dot with the grey, so
+    the pixel brightens with range though nothing else does. Over a window of the same patch
+    of surface in every view, the colour does not change with range."""
+    cameras, obs = _tracked_scene(tmp_path, monkeypatch)
+    grey, dark, dot = 0.5, 0.05, 0.025    # the dot's radius: source units on the surface
+    fine = 16                              # sub-samples a pixel side: the pixel's area average
+    offsets = (np.arange(fine) + 0.5) / fine
+    for index, frame in enumerate(cameras.frames):
+        here = obs.frames == index
+        image = np.full((frame.height, frame.width), grey)
+        for row, col, distance in zip(obs.rows[here], obs.cols[here], obs.ranges[here]):
+            radius = dot * frame.fx / distance             # pixels
+            for r in range(max(row - 3, 0), min(row + 4, frame.height)):
+                for c in range(max(col - 3, 0), min(col + 4, frame.width)):
+                    inside = np.hypot(c + offsets[None] - col - 0.5,
+                                      r + offsets[:, None] - row - 0.5) <= radius
+                    image[r, c] = min(image[r, c], grey + inside.mean() * (dark - grey))
+        write_float_tiff(tmp_path / "images" / f"{frame.name}.tiff",
+                         np.repeat(image[..., None], 3, -1).astype(np.float32))
+    pixel = np.stack([np.asarray(tracks_io.read_image(cameras.image_path(
+        cameras.frames[f])))[r, c] for f, r, c in zip(obs.frames, obs.rows, obs.cols)])
+    windowed = tracks_io.window_colours(cameras, obs, tracks_io.window_samples(
+        cameras, obs, window=0.2, grid=9))
+    at_pixel = track_slope(obs.track_ids, obs.ranges, pixel).slope
+    over_window = track_slope(obs.track_ids, obs.ranges, windowed).slope
+    assert (at_pixel > 0.1).all()
+    np.testing.assert_array_less(np.abs(over_window), 0.25 * at_pixel)
 
 
 def test_opacity_in_front_stops_each_ray_short_of_its_points_range(tmp_path, monkeypatch):

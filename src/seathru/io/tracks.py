@@ -5,8 +5,10 @@ Reads the COLMAP model the poses step keeps in ``poses/sparse`` (source units; i
 named ``<frame>.png``; posed datasets read from a source have none). Each 3D point is projected
 with the camera file's own (undistorted, normalised) cameras into the views of its track, so
 its pixel is that of the pipeline's linear image ``images/<frame>.tiff``; the range is the
-distance from the camera centre to the point, in source units. The restored colour of that
-pixel is rendered with the trained model for every view of the track (the render step writes
+distance from the camera centre to the point, in source units. For the colour slopes an
+observation's colour is the mean over a window around that pixel that spans the same patch of
+the surface in every view (:func:`window_samples`); its restored colour is rendered with the
+trained model through the window's samples for every view of the track (the render step writes
 restored images of the held-out views only, and few points are seen in two of those).
 """
 
@@ -26,9 +28,13 @@ from seathru.io.colmap import read_model
 from seathru.io.images import read_image, read_mask
 
 log = logging.getLogger(__name__)
-#: The restored photographs' colour along tracks is the mean over a window this share of the
-#: photograph's width across (:func:`restored_photo_colours`).
-PHOTO_WINDOW = 0.02
+#: A track's colour in a view is the mean over a square window this share of the image's width
+#: across at the track's median range, scaled by (median range / range) so that every view of
+#: the track averages the same patch of its surface (:func:`window_samples`).
+TRACK_WINDOW = 0.02
+#: The window is sampled on a grid of this many points a side: the same points in the input
+#: image, the renders and the restored photograph.
+WINDOW_GRID = 5
 
 SPARSE_DIR = "sparse"
 MIN_TRACKS = 20     # fewer tracks: no slope is reported
@@ -110,45 +116,124 @@ def track_observations(cameras: CameraSet, model_dir: Path, max_points: int = 20
                              normalised[found])
 
 
-def observation_rays(cameras: CameraSet, obs: TrackObservations):
+def window_samples(cameras: CameraSet, obs: TrackObservations, window: float = TRACK_WINDOW,
+                   grid: int = WINDOW_GRID) -> np.ndarray:
+    """Where each observation's colour is sampled: a ``grid`` x ``grid`` grid over a square
+    window around its pixel, ``window`` of the frame's width across at the track's median
+    range and scaled by (median range / range), so that it spans the same patch of the surface
+    in every view of the track.
+
+    Why a window and not the pixel: the tracks' pixels are feature points, blobs and corners.
+    Seen near, the pixel resolves the blob; seen far, it averages the blob with what surrounds
+    it, so a dark blob brightens with range and a bright one darkens, whatever the water. On
+    the real d3_reef frames the pixels' pooled green slope is 0.17 per unit of range, 0.10 over
+    windows (dark blobs 0.37 and bright ones -0.07 at the pixel, both 0.10 over windows). The
+    same points sample the input, the renders and the restored photographs, so all are
+    averaged alike.
+
+    Args:
+        cameras: the camera file the observations' pixels refer to.
+        obs: (N) observations (:func:`track_observations`).
+        window: the window's side as a share of the frame's width, at the track's median range.
+        grid: sample points a side.
+
+    Returns:
+        (N, grid * grid, 2) sample points (x, y) in the frame's pixel coordinates (pixel
+        (u, v) centred at (u + 0.5, v + 0.5)), inside the image.
+
+    Example::
+
+        points = window_samples(cameras, obs)
+        colours = window_colours(cameras, obs, points)     # (N, 3) input colour per window
+    """
+    import pandas as pd
+
+    median = pd.Series(obs.ranges).groupby(obs.track_ids).transform("median").to_numpy()
+    widths = np.array([f.width for f in cameras.frames], np.float64)[obs.frames]
+    heights = np.array([f.height for f in cameras.frames], np.float64)[obs.frames]
+    side = window * widths * median / np.maximum(obs.ranges, 1e-12)
+    steps = (np.arange(grid) + 0.5) / grid - 0.5
+    dx, dy = np.meshgrid(steps, steps)
+    x = obs.cols[:, None] + 0.5 + side[:, None] * dx.ravel()[None]
+    y = obs.rows[:, None] + 0.5 + side[:, None] * dy.ravel()[None]
+    x = np.clip(x, 0.5, widths[:, None] - 0.5)
+    y = np.clip(y, 0.5, heights[:, None] - 0.5)
+    return np.stack([x, y], -1)
+
+
+def _sample(image: np.ndarray, points: np.ndarray, scale_x: float, scale_y: float) -> np.ndarray:
+    """(n, 3) the image's mean over each row of points (n, S, 2), bilinear, the points given in
+    pixel coordinates of a frame ``1 / scale`` the image's size."""
+    from scipy.ndimage import map_coordinates
+
+    rows = (points[..., 1] * scale_y - 0.5).ravel()
+    cols = (points[..., 0] * scale_x - 0.5).ravel()
+    values = np.stack([map_coordinates(image[..., c], [rows, cols], order=1, mode="nearest")
+                       for c in range(3)], -1)
+    return values.reshape(*points.shape[:2], 3).mean(1)
+
+
+def window_colours(cameras: CameraSet, obs: TrackObservations,
+                   points: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) each observation's input colour: the mean of the frame's linear image over its
+    window (``points`` from :func:`window_samples`, which gives the default)."""
+    points = window_samples(cameras, obs) if points is None else points
+    colours = np.full((len(obs.rows), 3), np.nan)
+    for index, frame in enumerate(cameras.frames):
+        here = np.flatnonzero(obs.frames == index)
+        if here.size:
+            image = np.nan_to_num(read_image(cameras.image_path(frame)))
+            colours[here] = _sample(image, points[here], 1.0, 1.0)
+    return colours
+
+
+def observation_rays(cameras: CameraSet, obs: TrackObservations,
+                     points: np.ndarray | None = None):
     """The ray through each observation's pixel centre (as ``seathru.nerf.rays.camera_rays_np``),
-    one frame at a time.
+    or through each of its sample ``points`` (N, S, 2) (:func:`window_samples`), one frame at a
+    time.
 
     Yields:
         ``(rows, origins, directions, near, far)``: ``rows`` (n,) indices into ``obs``;
-        origins and directions (n, 3) float32 tensors in the camera file's frame; near and far
-        (n,) float32 tensors, the frame's bounds.
+        origins and directions (n * S, 3) float32 tensors in the camera file's frame, S rays of
+        each observation in a row (S = 1 without ``points``); near and far (n * S,) float32
+        tensors, the frame's bounds.
     """
     import torch
 
+    if points is None:
+        points = np.stack([obs.cols + 0.5, obs.rows + 0.5], -1)[:, None].astype(np.float64)
     for index, frame in enumerate(cameras.frames):
         here = np.flatnonzero(obs.frames == index)
         if here.size == 0:
             continue
         c2w = frame.c2w_array
-        camera = np.stack([(obs.cols[here] + 0.5 - frame.cx) / frame.fx,
-                           (obs.rows[here] + 0.5 - frame.cy) / frame.fy,
-                           np.ones(here.size)], axis=-1)
+        where = points[here].reshape(-1, 2)
+        camera = np.stack([(where[:, 0] - frame.cx) / frame.fx,
+                           (where[:, 1] - frame.cy) / frame.fy,
+                           np.ones(len(where))], axis=-1)
         directions = camera @ c2w[:3, :3].T
         directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
         origins = np.broadcast_to(c2w[:3, 3], directions.shape)
         yield (here, torch.from_numpy(origins.astype(np.float32)),
                torch.from_numpy(directions.astype(np.float32)),
-               torch.full((here.size,), float(frame.near)),
-               torch.full((here.size,), float(frame.far)))
+               torch.full((len(where),), float(frame.near)),
+               torch.full((len(where),), float(frame.far)))
 
 
 def rendered_colours(model, cameras: CameraSet, obs: TrackObservations,
-                     chunk: int = 8192) -> dict[str, np.ndarray]:
-    """The model's colours at each observation's pixel: ``{"restored": (N, 3), "rgb": (N, 3)}``,
-    the restored (water removed) and the full (with water) render."""
+                     points: np.ndarray | None = None, chunk: int = 8192
+                     ) -> dict[str, np.ndarray]:
+    """The model's colours at each observation: ``{"restored": (N, 3), "rgb": (N, 3)}``, the
+    restored (water removed) and the full (with water) render, at its pixel or, with
+    ``points`` (N, S, 2) from :func:`window_samples`, the mean over the rays through them."""
     from seathru.nerf.inference import render_rays
 
     colours = {key: np.zeros((len(obs.rows), 3), np.float32) for key in ("restored", "rgb")}
-    for here, origins, directions, near, far in observation_rays(cameras, obs):
+    for here, origins, directions, near, far in observation_rays(cameras, obs, points):
         rendered = render_rays(model, origins, directions, near, far, chunk)
         for key, values in colours.items():
-            values[here] = rendered[key].numpy()
+            values[here] = rendered[key].numpy().reshape(here.size, -1, 3).mean(1)
     return colours
 
 
@@ -174,21 +259,15 @@ def opacity_in_front(model, cameras: CameraSet, obs: TrackObservations, share: f
 
 
 def restored_photo_colours(renders: Path, cameras: CameraSet, obs: TrackObservations,
-                           window: float = PHOTO_WINDOW) -> tuple[np.ndarray, np.ndarray] | None:
+                           points: np.ndarray | None = None
+                           ) -> tuple[np.ndarray, np.ndarray] | None:
     """The input images and the render step's restored photographs (``photos/<view>.tiff``)
-    around each observation: ``(input, restored)``, each (N, 3), the mean over a square window
-    ``window`` of the photograph's width across (odd, at least 3 pixels), at the photograph's
-    size. None unless every frame with an observation has one (``render.photos.restore`` other
-    than ``all``).
-
-    A window, not the pixel: the tracks' pixels are feature points (blobs and corners), where the
-    photograph differs most from the model's smoother render, and that detail, divided by the
-    transmission, would bias a slope taken at the points themselves.
+    over each observation's window: ``(input, restored)``, each (N, 3), the means over the
+    sample ``points`` (N, S, 2) of :func:`window_samples` (the default), scaled to the
+    photograph's size. None unless every frame with an observation has one
+    (``render.photos.restore`` other than ``all``).
     """
-    from scipy.ndimage import uniform_filter
-
-    from seathru.radiometry.linearise import resize_area
-
+    points = window_samples(cameras, obs) if points is None else points
     colours = np.zeros((2, len(obs.rows), 3), np.float32)
     for index, frame in enumerate(cameras.frames):
         here = np.flatnonzero(obs.frames == index)
@@ -197,15 +276,11 @@ def restored_photo_colours(renders: Path, cameras: CameraSet, obs: TrackObservat
         path = Path(renders) / renders_io.PHOTOS_DIR / f"{frame.name}.tiff"
         if not path.is_file():
             return None
-        photo = read_image(path)[..., :3]
-        height, width = photo.shape[:2]
-        source = resize_area(read_image(cameras.image_path(frame))[..., :3], (width, height))
-        size = max(3, 2 * int(round(window * width / 2)) + 1)
-        rows = np.minimum((obs.rows[here] * height) // frame.height, height - 1)
-        cols = np.minimum((obs.cols[here] * width) // frame.width, width - 1)
-        for k, image in enumerate((source, photo)):
-            smooth = uniform_filter(np.nan_to_num(image), (size, size, 1), mode="nearest")
-            colours[k, here] = smooth[rows, cols]
+        photo = np.nan_to_num(read_image(path))
+        source = np.nan_to_num(read_image(cameras.image_path(frame)))
+        colours[0, here] = _sample(source, points[here], 1.0, 1.0)
+        colours[1, here] = _sample(photo, points[here], photo.shape[1] / frame.width,
+                                   photo.shape[0] / frame.height)
     return colours[0], colours[1]
 
 
@@ -214,10 +289,11 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
                        ) -> dict | None:
     """``summary.json``'s ``track_colour_slope``: the within-track slope of log colour against
     range in the input images, in the restored renders and in the full renders (with water),
-    per channel, and its reduction; with the render step's restored photographs in
-    ``renders`` (:func:`restored_photo_colours`), each part also holds ``"photographs"``: the
-    same summary of the input images and the restored photographs around the observations
-    (``seathru.eval.track_slope.colour_slope_summary``) over all views of the tracks, and over
+    per channel, and its reduction, each colour the mean over the observation's window
+    (:func:`window_samples`: the same samples in every image); with the render step's
+    restored photographs in ``renders`` (:func:`restored_photo_colours`), each part also holds
+    ``"photographs"``: the same summary of the input images and the restored photographs
+    (``seathru.eval.track_slope.colour_slope_summary``). Over all views of the tracks, over
     the held-out views alone where at least ``min_tracks`` tracks have two held-out
     observations (else that part is ``{"source": "none", "reason": ...}``), and over all views
     of the nearest 90% of the tracks and of the farthest 10% (``near_tracks``, ``far_tracks``;
@@ -233,9 +309,15 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
     if not Path(model_path).is_file():
         return {"source": "none", "reason": f"{model_path}: no trained model"}
     obs = track_observations(cameras, model_dir)
-    photo = None if renders is None else restored_photo_colours(renders, cameras, obs)
+    points = window_samples(cameras, obs)
+    observed = window_colours(cameras, obs, points)
+    photo = None if renders is None else restored_photo_colours(renders, cameras, obs, points)
     result: dict = {"source": str(model_dir), "range_units": "source units (COLMAP's)",
-                    "restored_from": "the trained model, rendered at every observation's pixel"}
+                    "restored_from": "the trained model, rendered through every sample of "
+                                     "each observation's window",
+                    "window": {"share_of_width": TRACK_WINDOW, "grid": WINDOW_GRID,
+                               "at": "the track's median range, scaled by median range / "
+                                     "range (the same patch of surface in every view)"}}
     far = far_tracks(obs.track_ids, obs.ranges)
     parts = {"all_views": np.ones(len(obs.rows), bool), "held_out_views": obs.held_out,
              "near_tracks": ~far, "far_tracks": far}
@@ -255,14 +337,13 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
                 model = load_model(model_path, select_device("auto", threads))
             except PipelineError as exc:
                 return {"source": "none", "reason": str(exc)}
-            rendered = rendered_colours(model, cameras, obs)
+            rendered = rendered_colours(model, cameras, obs, points)
         result[name] = colour_slope_summary(obs.track_ids[keep], obs.ranges[keep],
-                                            obs.observed[keep], rendered["restored"][keep],
+                                            observed[keep], rendered["restored"][keep],
                                             rendered["rgb"][keep])
         if photo is not None:
-            result[name]["photographs"] = {
-                **colour_slope_summary(obs.track_ids[keep], obs.ranges[keep], photo[0][keep],
-                                       photo[1][keep]), "window": PHOTO_WINDOW}
+            result[name]["photographs"] = colour_slope_summary(
+                obs.track_ids[keep], obs.ranges[keep], photo[0][keep], photo[1][keep])
     headline = result.get("all_views", {})
     if "reduction" in headline:
         log.info("track colour slope (log colour per unit range, R G B): input %s, full render "
@@ -277,8 +358,9 @@ def _fmt(values) -> str:
 
 
 def input_colour_change(cameras: CameraSet, max_points: int = 5000) -> dict | None:
-    """How the input colour of the training views changes with range along COLMAP tracks:
-    evidence of water for the medium decision that does not depend on the model.
+    """How the input colour of the training views changes with range along COLMAP tracks
+    (each observation's colour the mean over its window, :func:`window_samples`): evidence of
+    water for the medium decision that does not depend on the model.
 
     Returns:
         ``{"tracks", "observations", "median_range", "slope", "stderr", "t",
@@ -297,7 +379,8 @@ def input_colour_change(cameras: CameraSet, max_points: int = 5000) -> dict | No
         log.warning("no track evidence: %s", exc)
         return None
     train = ~obs.held_out
-    fit = track_slope(obs.track_ids[train], obs.ranges[train], obs.observed[train])
+    fit = track_slope(obs.track_ids[train], obs.ranges[train],
+                      window_colours(cameras, obs)[train])
     if fit.tracks < MIN_TRACKS:
         return None
     median = float(np.median(obs.ranges[train]))

@@ -217,8 +217,9 @@ class MediumConfig:
                                             "when it is this many standard errors from 0 ...")
     auto_track_change: float = setting(
         0.2, help="auto: ... and changes the colour by more than this share over the median "
-                  "range (measured: 57-63% on d3_reef and the survey demo, 10% on a simulated "
-                  "orbit in clear water)")
+                  "range (measured over the tracks' windows: 35-50% in green and blue on "
+                  "d3_reef, -69% in red on the survey demo, 10-11% on a simulated orbit in "
+                  "clear water)")
     auto_veiling_spread: float = setting(
         0.1, help="auto: the water starts as veiling (else global) when the open water's "
                   "colour changes with view direction by more than this share of its "
