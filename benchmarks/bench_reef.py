@@ -77,7 +77,7 @@ def track_scores(run: Path, cameras_path: Path) -> dict:
     from seathru.eval.track_slope import colour_slope_summary, far_tracks
     from seathru.io.model import load_model
     from seathru.io.tracks import (SPARSE_DIR, opacity_in_front, rendered_colours,
-                                   track_observations, window_colours, window_samples)
+                                   track_observations, track_windows)
 
     cameras = read_cameras(cameras_path)
     model_path = run / "train" / "model.pt"
@@ -86,12 +86,12 @@ def track_scores(run: Path, cameras_path: Path) -> dict:
                 "reproduced": None, "followed": None}
     torch.set_num_threads(1)
     obs = track_observations(cameras, cameras.root / SPARSE_DIR)
-    points = window_samples(cameras, obs)
-    observed = window_colours(cameras, obs, points)
+    windows = track_windows(cameras, obs)
+    observed = windows.observed
     model = load_model(model_path)
     with torch.no_grad():
         fog = opacity_in_front(model, cameras, obs)
-        rendered = rendered_colours(model, cameras, obs, points)
+        rendered = rendered_colours(model, cameras, obs, windows)
     far = obs.ranges >= np.quantile(obs.ranges, 0.75)
     far_track = far_tracks(obs.track_ids, obs.ranges)
     scores = {}

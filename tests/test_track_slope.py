@@ -248,7 +248,7 @@ def test_restored_photo_colours_are_the_mean_over_each_observations_window(tmp_p
         # the input images hold (row, col, frame) at full size: the same windows
         np.testing.assert_allclose(source[inner], (expected if shrink == 1 else np.stack(
             [obs.rows + 0.0, obs.cols + 0.0, obs.frames], -1))[inner], atol=1e-4)
-        np.testing.assert_allclose(source, tracks_io.window_colours(cameras, obs, points),
+        np.testing.assert_allclose(source, tracks_io.track_windows(cameras, obs).observed,
                                    atol=1e-6)
     (tmp_path / "render1" / "photos" / f"{cameras.frames[0].name}.tiff").unlink()
     assert tracks_io.restored_photo_colours(tmp_path / "render1", cameras, obs) is None
@@ -275,7 +275,7 @@ def test_window_spans_the_same_patch_of_surface_in_every_view(tmp_path, monkeypa
         np.testing.assert_allclose(footprint, 0.05 * 80 * median, rtol=1e-9)
 
 
-def test_window_colours_take_out_the_bias_of_a_blob_seen_at_different_ranges(
+def test_windows_take_out_the_bias_of_a_blob_seen_at_different_ranges(
         tmp_path, monkeypatch):
     """A dark dot on a grey surface: seen far, its pixel averages the dot with the grey, so
     the pixel brightens with range though nothing else does. Over a window of the same patch
@@ -298,12 +298,55 @@ def test_window_colours_take_out_the_bias_of_a_blob_seen_at_different_ranges(
                          np.repeat(image[..., None], 3, -1).astype(np.float32))
     pixel = np.stack([np.asarray(tracks_io.read_image(cameras.image_path(
         cameras.frames[f])))[r, c] for f, r, c in zip(obs.frames, obs.rows, obs.cols)])
-    windowed = tracks_io.window_colours(cameras, obs, tracks_io.window_samples(
-        cameras, obs, window=0.2, grid=9))
+    windowed = tracks_io.track_windows(cameras, obs, window=0.2, grid=9).observed
     at_pixel = track_slope(obs.track_ids, obs.ranges, pixel).slope
     over_window = track_slope(obs.track_ids, obs.ranges, windowed).slope
     assert (at_pixel > 0.1).all()
     np.testing.assert_array_less(np.abs(over_window), 0.25 * at_pixel)
+
+
+def test_window_samples_on_invalid_pixels_are_left_out_of_every_mean(tmp_path, monkeypatch):
+    """Samples on pixels outside the frame's mask (0.9) or not finite (undistortion's borders)
+    count neither in the input's colour (0.25) nor in the renders' or photographs' means (the
+    photograph is 9 where the input is not finite)."""
+    cameras, obs = _tracked_scene(tmp_path, monkeypatch)
+    (tmp_path / "masks").mkdir()
+    for index, frame in enumerate(cameras.frames):
+        image = np.full((frame.height, frame.width, 3), 0.25, np.float32)
+        mask = np.ones((frame.height, frame.width), np.float32)
+        # left of each observation's own column: masked out in odd columns, NaN in even ones
+        for row, col in zip(obs.rows[obs.frames == index], obs.cols[obs.frames == index]):
+            for c in range(max(col - 6, 0), col):
+                if c % 2:
+                    mask[max(row - 6, 0):row + 7, c] = 0.0
+                    image[max(row - 6, 0):row + 7, c] = 0.9
+                else:
+                    image[max(row - 6, 0):row + 7, c] = np.nan
+        mask[obs.rows[obs.frames == index], obs.cols[obs.frames == index]] = 1.0
+        image[obs.rows[obs.frames == index], obs.cols[obs.frames == index]] = 0.25
+        write_float_tiff(tmp_path / "images" / f"{frame.name}.tiff", image)
+        write_float_tiff(tmp_path / "masks" / f"{frame.name}.tiff", mask)
+        frame.mask = f"masks/{frame.name}.tiff"
+        write_float_tiff(tmp_path / "render" / "photos" / f"{frame.name}.tiff",
+                         np.where(np.isfinite(image), 0.5, 9.0).astype(np.float32))
+    windows = tracks_io.track_windows(cameras, obs, window=0.1, grid=5)
+    assert (~windows.valid).any() and windows.valid.any(1).all()
+    np.testing.assert_allclose(windows.observed, 0.25, atol=1e-6)
+    _, photo = tracks_io.restored_photo_colours(tmp_path / "render", cameras, obs, windows)
+    np.testing.assert_allclose(photo, 0.5, atol=1e-6)
+
+    def render_rays(model, origins, directions, near, far, chunk=8192):
+        return {"restored": torch.ones(len(origins), 3), "rgb": torch.full((len(origins), 3),
+                                                                          0.5)}
+
+    monkeypatch.setattr("seathru.nerf.inference.render_rays", render_rays)
+    rendered = tracks_io.rendered_colours(None, cameras, obs, windows)
+    np.testing.assert_allclose(rendered["restored"], 1.0)
+    # without the masks the masked-out pixels (0.9) count, the NaN ones still do not
+    for frame in cameras.frames:
+        frame.mask = None
+    unmasked = tracks_io.track_windows(cameras, obs, window=0.1, grid=5)
+    assert (unmasked.observed > 0.25 + 1e-3).any() and np.isfinite(unmasked.observed).all()
 
 
 def test_opacity_in_front_stops_each_ray_short_of_its_points_range(tmp_path, monkeypatch):

@@ -143,8 +143,7 @@ def window_samples(cameras: CameraSet, obs: TrackObservations, window: float = T
 
     Example::
 
-        points = window_samples(cameras, obs)
-        colours = window_colours(cameras, obs, points)     # (N, 3) input colour per window
+        points = window_samples(cameras, obs)      # (N, 25, 2)
     """
     import pandas as pd
 
@@ -161,30 +160,65 @@ def window_samples(cameras: CameraSet, obs: TrackObservations, window: float = T
     return np.stack([x, y], -1)
 
 
-def _sample(image: np.ndarray, points: np.ndarray, scale_x: float, scale_y: float) -> np.ndarray:
-    """(n, 3) the image's mean over each row of points (n, S, 2), bilinear, the points given in
-    pixel coordinates of a frame ``1 / scale`` the image's size."""
+def _sample(image: np.ndarray, points: np.ndarray, scale_x: float = 1.0,
+            scale_y: float = 1.0) -> np.ndarray:
+    """(n, S, C) the image (H, W, C) at points (n, S, 2), bilinear, the points given in pixel
+    coordinates of a frame ``1 / scale`` the image's size."""
     from scipy.ndimage import map_coordinates
 
     rows = (points[..., 1] * scale_y - 0.5).ravel()
     cols = (points[..., 0] * scale_x - 0.5).ravel()
     values = np.stack([map_coordinates(image[..., c], [rows, cols], order=1, mode="nearest")
-                       for c in range(3)], -1)
-    return values.reshape(*points.shape[:2], 3).mean(1)
+                       for c in range(image.shape[-1])], -1)
+    return values.reshape(*points.shape[:2], image.shape[-1])
 
 
-def window_colours(cameras: CameraSet, obs: TrackObservations,
-                   points: np.ndarray | None = None) -> np.ndarray:
-    """(N, 3) each observation's input colour: the mean of the frame's linear image over its
-    window (``points`` from :func:`window_samples`, which gives the default)."""
-    points = window_samples(cameras, obs) if points is None else points
-    colours = np.full((len(obs.rows), 3), np.nan)
+def _window_mean(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(n, C) the mean of values (n, S, C) over the valid (n, S) samples."""
+    weights = valid.astype(np.float64)
+    return (values * weights[..., None]).sum(1) / np.maximum(weights.sum(1), 1.0)[:, None]
+
+
+@dataclass
+class TrackWindows:
+    """Each observation's window (:func:`track_windows`), N observations of S samples."""
+
+    points: np.ndarray     # (N, S, 2) sample points, the frame's pixel coordinates
+    valid: np.ndarray      # (N, S) bool: the sample lies on valid input pixels
+    observed: np.ndarray   # (N, 3) input linear colour, the mean over the valid samples
+
+
+def track_windows(cameras: CameraSet, obs: TrackObservations, window: float = TRACK_WINDOW,
+                  grid: int = WINDOW_GRID) -> TrackWindows:
+    """The observations' windows (:func:`window_samples`) and the input's colour over each.
+
+    A sample counts where the input image is finite and inside the frame's mask at all four
+    pixels it interpolates (undistortion leaves invalid borders); the renders and restored
+    photographs are averaged over the same samples. An observation none of whose samples
+    count keeps them all (its own pixel is valid: :func:`track_observations`).
+
+    Example::
+
+        windows = track_windows(cameras, obs)
+        fit = track_slope(obs.track_ids, obs.ranges, windows.observed)
+    """
+    points = window_samples(cameras, obs, window, grid)
+    valid = np.ones(points.shape[:2], bool)
+    values = np.zeros((*points.shape[:2], 3))
     for index, frame in enumerate(cameras.frames):
         here = np.flatnonzero(obs.frames == index)
-        if here.size:
-            image = np.nan_to_num(read_image(cameras.image_path(frame)))
-            colours[here] = _sample(image, points[here], 1.0, 1.0)
-    return colours
+        if here.size == 0:
+            continue
+        image = np.asarray(read_image(cameras.image_path(frame))[..., :3], np.float64)
+        good = np.isfinite(image).all(-1)
+        mask_path = cameras.mask_path(frame)
+        if mask_path is not None and mask_path.is_file():
+            mask = read_mask(mask_path)
+            good &= mask[..., 0] if mask.ndim == 3 else mask
+        values[here] = _sample(np.nan_to_num(image), points[here])
+        valid[here] = _sample(good[..., None].astype(np.float64), points[here])[..., 0] > 0.999
+    valid[~valid.any(1)] = True
+    return TrackWindows(points, valid, _window_mean(values, valid))
 
 
 def observation_rays(cameras: CameraSet, obs: TrackObservations,
@@ -222,18 +256,21 @@ def observation_rays(cameras: CameraSet, obs: TrackObservations,
 
 
 def rendered_colours(model, cameras: CameraSet, obs: TrackObservations,
-                     points: np.ndarray | None = None, chunk: int = 8192
+                     windows: TrackWindows | None = None, chunk: int = 8192
                      ) -> dict[str, np.ndarray]:
     """The model's colours at each observation: ``{"restored": (N, 3), "rgb": (N, 3)}``, the
     restored (water removed) and the full (with water) render, at its pixel or, with
-    ``points`` (N, S, 2) from :func:`window_samples`, the mean over the rays through them."""
+    ``windows`` (:func:`track_windows`), the mean over the rays through its valid samples."""
     from seathru.nerf.inference import render_rays
 
+    points = None if windows is None else windows.points
     colours = {key: np.zeros((len(obs.rows), 3), np.float32) for key in ("restored", "rgb")}
     for here, origins, directions, near, far in observation_rays(cameras, obs, points):
         rendered = render_rays(model, origins, directions, near, far, chunk)
         for key, values in colours.items():
-            values[here] = rendered[key].numpy().reshape(here.size, -1, 3).mean(1)
+            samples = rendered[key].numpy().reshape(here.size, -1, 3)
+            values[here] = samples.mean(1) if windows is None else _window_mean(
+                samples, windows.valid[here])
     return colours
 
 
@@ -259,16 +296,16 @@ def opacity_in_front(model, cameras: CameraSet, obs: TrackObservations, share: f
 
 
 def restored_photo_colours(renders: Path, cameras: CameraSet, obs: TrackObservations,
-                           points: np.ndarray | None = None
+                           windows: TrackWindows | None = None
                            ) -> tuple[np.ndarray, np.ndarray] | None:
     """The input images and the render step's restored photographs (``photos/<view>.tiff``)
     over each observation's window: ``(input, restored)``, each (N, 3), the means over the
-    sample ``points`` (N, S, 2) of :func:`window_samples` (the default), scaled to the
+    valid samples of ``windows`` (:func:`track_windows`, the default), scaled to the
     photograph's size. None unless every frame with an observation has one
     (``render.photos.restore`` other than ``all``).
     """
-    points = window_samples(cameras, obs) if points is None else points
-    colours = np.zeros((2, len(obs.rows), 3), np.float32)
+    windows = track_windows(cameras, obs) if windows is None else windows
+    restored = np.zeros((len(obs.rows), 3))
     for index, frame in enumerate(cameras.frames):
         here = np.flatnonzero(obs.frames == index)
         if here.size == 0:
@@ -276,12 +313,11 @@ def restored_photo_colours(renders: Path, cameras: CameraSet, obs: TrackObservat
         path = Path(renders) / renders_io.PHOTOS_DIR / f"{frame.name}.tiff"
         if not path.is_file():
             return None
-        photo = np.nan_to_num(read_image(path))
-        source = np.nan_to_num(read_image(cameras.image_path(frame)))
-        colours[0, here] = _sample(source, points[here], 1.0, 1.0)
-        colours[1, here] = _sample(photo, points[here], photo.shape[1] / frame.width,
-                                   photo.shape[0] / frame.height)
-    return colours[0], colours[1]
+        photo = np.nan_to_num(np.asarray(read_image(path)[..., :3], np.float64))
+        samples = _sample(photo, windows.points[here], photo.shape[1] / frame.width,
+                          photo.shape[0] / frame.height)
+        restored[here] = _window_mean(samples, windows.valid[here])
+    return windows.observed, restored
 
 
 def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None = None,
@@ -309,9 +345,9 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
     if not Path(model_path).is_file():
         return {"source": "none", "reason": f"{model_path}: no trained model"}
     obs = track_observations(cameras, model_dir)
-    points = window_samples(cameras, obs)
-    observed = window_colours(cameras, obs, points)
-    photo = None if renders is None else restored_photo_colours(renders, cameras, obs, points)
+    windows = track_windows(cameras, obs)
+    observed = windows.observed
+    photo = None if renders is None else restored_photo_colours(renders, cameras, obs, windows)
     result: dict = {"source": str(model_dir), "range_units": "source units (COLMAP's)",
                     "restored_from": "the trained model, rendered through every sample of "
                                      "each observation's window",
@@ -337,7 +373,7 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
                 model = load_model(model_path, select_device("auto", threads))
             except PipelineError as exc:
                 return {"source": "none", "reason": str(exc)}
-            rendered = rendered_colours(model, cameras, obs, points)
+            rendered = rendered_colours(model, cameras, obs, windows)
         result[name] = colour_slope_summary(obs.track_ids[keep], obs.ranges[keep],
                                             observed[keep], rendered["restored"][keep],
                                             rendered["rgb"][keep])
@@ -380,7 +416,7 @@ def input_colour_change(cameras: CameraSet, max_points: int = 5000) -> dict | No
         return None
     train = ~obs.held_out
     fit = track_slope(obs.track_ids[train], obs.ranges[train],
-                      window_colours(cameras, obs)[train])
+                      track_windows(cameras, obs).observed[train])
     if fit.tracks < MIN_TRACKS:
         return None
     median = float(np.median(obs.ranges[train]))
