@@ -569,11 +569,16 @@ def test_track_slope_reduction_column_only_where_fitted():
     records = _slope_records()
     table = summary_table(records)
     columns = list(table.columns)
-    assert columns.index("track_slope_reduction") + 1 == columns.index("train_time_s")
+    assert columns.index("track_slope_reduction") + 1 \
+        == columns.index("photo_track_slope_reduction") == columns.index("train_time_s") - 1
     rows = table.set_index("dataset")["track_slope_reduction"]
     assert rows["reef"] == pytest.approx(0.8, abs=0.02)     # the share of the slope removed
     assert rows["lagoon"] == pytest.approx(0.4, abs=0.02)
     assert rows[["plain", "untrained", "broken"]].isna().all()
+    # the restored photographs keep half of the input's slope in every fixture
+    photos = table.set_index("dataset")["photo_track_slope_reduction"]
+    assert photos[["reef", "lagoon"]].to_numpy() == pytest.approx([0.5, 0.5], abs=0.02)
+    assert photos[["plain", "untrained", "broken"]].isna().all()
     # a fit without an input slope (null in summary.json) is a missing value, not an error
     flat = _summary("flat", 20.0)
     flat.track_colour_slope = {**_track_slope(0.5), "all_views": {
@@ -591,8 +596,11 @@ def test_html_shows_slopes_per_channel_against_the_goal_and_why_a_part_is_missin
     page = render_html(summary_table(records), records, {}, {}, "now")
     summary = page.split('<table class="summary">')[1].split("</table>")[0]
     assert "<th>track_slope_reduction</th>" in summary
+    assert "<th>photo_track_slope_reduction</th>" in summary
     reef_all = records[0].summary.track_colour_slope["all_views"]
     assert f"<td>{100 * reef_all['reduction_overall']:.0f}%</td>" in summary
+    photo_cell = f"<td>{100 * reef_all['photographs']['reduction_overall']:.0f}%</td>"
+    assert photo_cell in summary and photo_cell == "<td>50%</td>"
     section = page.split("<h2>Colour along COLMAP tracks</h2>")[1].split("<h2>")[0]
     assert "plain" not in section and "broken" not in section
     assert "untrained" in section and "/d/model.pt: no trained model" in section

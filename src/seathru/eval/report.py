@@ -57,7 +57,7 @@ TABLE_COLUMNS = (
     "photo_restored_psnr_linear",
     "full_vs_clean_psnr_linear",
     "depth_median_abs_rel", "depth_corr", *CHART_COLUMNS, "track_slope_reduction",
-    "train_time_s", "train_steps",
+    "photo_track_slope_reduction", "train_time_s", "train_steps",
     "capacity", "passes", "render_fps", "render_resolution", "medium")
 #: The share of the input's colour slope along tracks a restoration should remove on a real dive.
 TRACK_SLOPE_GOAL = 0.7
@@ -442,16 +442,23 @@ def _slope_part(slope: dict | None, key: str) -> dict | None:
 
 def track_slope_cells(summary: EvaluationSummary | None) -> dict[str, float | None]:
     """``track_slope_reduction``: the share of the input's colour slope along COLMAP tracks
-    the restoration removed over all views (``reduction_overall``; 1 removes all of it, below 0
-    made it steeper); {} where the evaluation fitted none.
+    the restored render removed over all views (``reduction_overall``; 1 removes all of it,
+    below 0 made it steeper), and ``photo_track_slope_reduction``, the same for the restored
+    photographs where the evaluation measured them; {} where it fitted none.
 
     Example::
 
-        track_slope_cells(summary)   # {"track_slope_reduction": 0.51}
+        track_slope_cells(summary)
+        # {"track_slope_reduction": 0.66, "photo_track_slope_reduction": 0.87}
     """
     part = _slope_part(summary.track_colour_slope if summary is not None else None, "all_views")
-    return {} if part is None else {"track_slope_reduction": _finite(
-        part.get("reduction_overall"))}
+    if part is None:
+        return {}
+    cells = {"track_slope_reduction": _finite(part.get("reduction_overall"))}
+    photographs = part.get("photographs")
+    if isinstance(photographs, dict) and "reduction_overall" in photographs:
+        cells["photo_track_slope_reduction"] = _finite(photographs.get("reduction_overall"))
+    return cells
 
 
 def _slope_fit(record) -> list[tuple[float | None, float | None]]:

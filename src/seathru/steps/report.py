@@ -38,7 +38,8 @@ Writes to ``--out``:
   patches: reference, photo, ingest image and restored render.
 - the page's "Colour along COLMAP tracks": for a dataset whose evaluation fitted the colour's
   slope against range along COLMAP tracks, per channel the input's and the restored render's
-  slope and the share removed (``track_slope_reduction`` in the table), against the 70% goal.
+  slope and the share removed (``track_slope_reduction`` in the table; for the restored
+  photographs ``photo_track_slope_reduction``), against the 70% goal.
 
 Datasets evaluated with ``evaluate.protocol=nerfbaselines`` get that protocol's means beside
 ours (``nerfbaselines_psnr``, ``_ssim``, ``_lpips``), datasets with a colour chart its mean
