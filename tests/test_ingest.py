@@ -22,7 +22,8 @@ from seathru.errors import PipelineError
 from seathru.io import raw as rawio
 from seathru.io.dataset_readers import frame_names, layout_images, read_source_mask
 from seathru.io.images import read_mask
-from seathru.io.image_folder import resolve_input, select_files, select_paths
+from seathru.io.image_folder import (every_image_file, image_subfolders, resolve_input,
+                                     select_files, select_paths)
 from seathru.steps import ingest
 
 rawpy = pytest.importorskip("rawpy")
@@ -418,7 +419,7 @@ def test_file_selection_kinds_duplicates_and_hints(tmp_path):
     assert detection["kind"] == "linear" and [p.name for p, _, _ in selected] == ["a.png"]
     assert "duplicate" in rejected[0]["reason"] and rejected[0]["file"] == "a.tif"
 
-    with pytest.raises(PipelineError, match="subfolders with images: mixed, pngs"):
+    with pytest.raises(PipelineError, match="subfolders with images: mixed \\(3\\), pngs \\(2\\)"):
         select_files(tmp_path, "auto")
     with pytest.raises(PipelineError, match="subfolders: mixed, pngs"):
         resolve_input(tmp_path, "images_wb")
@@ -779,3 +780,33 @@ def test_images_setting_names_the_subfolder_of_a_plain_source(tmp_path):
                           tmp_path / "out", "--workers", 1)
     assert len(manifest["images"]) == 3 and manifest["input"]["subdir"] == "images"
     assert manifest["input"]["layout"] is None
+
+
+def test_a_camera_cards_folders_are_named_and_read_with_images_all(tmp_path):
+    """A card dump (DCIM/100GOPRO, DCIM/101GOPRO, sidecar files, hidden files): without a
+    choice ingest names the folders that hold images; ``images=all`` reads them all in path
+    order, and names repeated across folders are made unique by their path."""
+    card = tmp_path / "card"
+    _pngs(card / "DCIM" / "100GOPRO", ["G0001.png", "G0002.png"])
+    _pngs(card / "DCIM" / "101GOPRO", ["G0003.png", "G0004.png"])
+    _pngs(card / "DCIM" / ".thumbnails", ["G0001.png"])
+    (card / "DCIM" / "100GOPRO" / "G0001.THM").write_bytes(b"thumb")
+    (card / "DCIM" / "100GOPRO" / "._G0002.png").write_bytes(b"apple double")
+    with pytest.raises(PipelineError, match=r"subfolders with images: DCIM/100GOPRO \(2\), "
+                                            r"DCIM/101GOPRO \(2\).*ingest.images=all"):
+        run_ingest("--input", card, "--out", tmp_path / "out")
+    manifest = run_ingest("--input", card, "--images", "all", "--out", tmp_path / "out",
+                          "--workers", 1)
+    assert [image["name"] for image in manifest["images"]] == ["G0001", "G0002", "G0003",
+                                                               "G0004"]
+    one = run_ingest("--input", card, "--images", "DCIM/101GOPRO", "--out", tmp_path / "one",
+                     "--workers", 1, "--min-images", 2)
+    assert [image["name"] for image in one["images"]] == ["G0003", "G0004"]
+    # a camera that restarts its numbering in the next folder
+    _pngs(card / "DCIM" / "101GOPRO", ["G0001.png"])
+    files = every_image_file(card)
+    assert [name for path, name in files if path.suffix == ".png"] == [
+        "DCIM__100GOPRO__G0001", "DCIM__100GOPRO__G0002", "DCIM__101GOPRO__G0001",
+        "DCIM__101GOPRO__G0003", "DCIM__101GOPRO__G0004"]
+    assert image_subfolders(card) == [("DCIM/100GOPRO", 2), ("DCIM/101GOPRO", 3)]
+    assert image_subfolders(card, depth=1) == []

@@ -44,24 +44,81 @@ def resolve_input(folder: Path, subdir: str | None) -> Path:
                         f"(subfolders: {', '.join(available) or 'none'})")
 
 
-def select_files(folder: Path, kind: str) -> tuple[list[tuple[Path, str, str]],
-                                                   list[RejectedFile], dict[str, Any]]:
-    """Images of ``folder`` to decode as ``(path, name, kind)``, rejected files and what was
-    detected (:func:`select_paths` on the folder's files, names = file stems).
+#: ``images`` value that reads every image under the dataset's folder, subfolders included
+#: (a camera card's ``DCIM/100XXXXX``, ``101XXXXX``, ...).
+EVERY_FOLDER = "all"
+
+
+def _visible_files(folder: Path) -> list[Path]:
+    return [path for path in sorted(folder.iterdir(), key=lambda p: p.name)
+            if not path.name.startswith(".") and path.is_file()]
+
+
+def _visible_folders(folder: Path) -> list[Path]:
+    return [path for path in sorted(folder.iterdir(), key=lambda p: p.name)
+            if not path.name.startswith(".") and path.is_dir() and not path.is_symlink()]
+
+
+def image_subfolders(folder: Path, depth: int = 3) -> list[tuple[str, int]]:
+    """The subfolders of ``folder`` that hold image files, at most ``depth`` levels down
+    (hidden folders skipped): ``(relative POSIX path, image count)`` in path order."""
+    found: list[tuple[str, int]] = []
+    level = _visible_folders(folder)
+    for _ in range(depth):
+        deeper: list[Path] = []
+        for sub in level:
+            count = sum(1 for f in _visible_files(sub) if detect_kind(f))
+            if count:
+                found.append((sub.relative_to(folder).as_posix(), count))
+            deeper += _visible_folders(sub)
+        level = deeper
+    return sorted(found)
+
+
+def every_image_file(folder: Path) -> list[tuple[Path, str]]:
+    """Every file under ``folder``, subfolders included (hidden ones and links to folders
+    skipped), as ``(path, name)`` in path order. The name is the file's stem; where a stem
+    appears in more than one folder (cameras that restart their numbering), every file is
+    named by its path instead, as ``seathru.io.dataset_readers.frame_names`` does
+    (``DCIM/101GOPRO/G0010.JPG``: ``DCIM__101GOPRO__G0010``). A RAW and a JPEG of one shot
+    share a stem in one folder, which is not a repeat."""
+    files: list[Path] = []
+    level = [folder]
+    while level:
+        deeper: list[Path] = []
+        for sub in level:
+            files += _visible_files(sub)
+            deeper += _visible_folders(sub)
+        level = deeper
+    files.sort(key=lambda path: path.relative_to(folder).as_posix())
+    folders_of: dict[str, set[Path]] = {}
+    for path in files:
+        folders_of.setdefault(path.stem, set()).add(path.parent)
+    by_path = any(len(parents) > 1 for parents in folders_of.values())
+    return [(path, "__".join(path.relative_to(folder).with_suffix("").parts)
+             if by_path else path.stem) for path in files]
+
+
+def select_files(folder: Path, kind: str, every_folder: bool = False
+                 ) -> tuple[list[tuple[Path, str, str]], list[RejectedFile], dict[str, Any]]:
+    """Images of ``folder`` (with ``every_folder``, of its subfolders too:
+    :func:`every_image_file`) to decode as ``(path, name, kind)``, rejected files and what was
+    detected (:func:`select_paths`; names are file stems).
 
     Raises:
-        PipelineError: the folder holds no image file (naming its subfolders that do).
+        PipelineError: no image file found (naming the subfolders that hold some).
     """
-    files = [path for path in sorted(folder.iterdir(), key=lambda p: p.name)
-             if not path.name.startswith(".") and path.is_file()]
-    if not any(detect_kind(path) for path in files):
-        with_images = sorted(p.name for p in folder.iterdir() if p.is_dir() and any(
-            detect_kind(f) for f in p.iterdir() if f.is_file()))
-        hint = (f"; subfolders with images: {', '.join(with_images)} (use --subdir, or the "
-                f"sheet's source llff, colmap or nerfstudio for those layouts)"
-                if with_images else "")
+    files = every_image_file(folder) if every_folder else [
+        (path, path.stem) for path in _visible_files(folder)]
+    if not any(detect_kind(path) for path, _ in files):
+        with_images = image_subfolders(folder)
+        listed = ", ".join(f"{name} ({count})" for name, count in with_images[:8])
+        hint = (f"; subfolders with images: {listed}{' ...' if len(with_images) > 8 else ''}"
+                f" (choose one with the sheet's options ingest.images=<subfolder>, take them "
+                f"all with ingest.images={EVERY_FOLDER}, or use the sheet's source llff, "
+                f"colmap or nerfstudio for those layouts)" if with_images else "")
         raise PipelineError(f"{folder}: no image files (RAW, JPEG, PNG, TIFF) found{hint}")
-    return select_paths([(path, path.stem) for path in files], kind)
+    return select_paths(files, kind)
 
 
 def select_paths(files: list[tuple[Path, str]], kind: str
@@ -141,13 +198,16 @@ def find_inputs(given: Path, subdir: str | None, layout: str | None, images: str
                 kind: str) -> InputImages:
     """The images of ``given``: with ``layout`` (llff, colmap, nerfstudio) those the dataset
     holds in that layout, ``images`` choosing the folder (``auto`` or a name); otherwise the
-    files of ``given/subdir`` (``subdir`` or, unless ``auto``, ``images``; else ``given``).
+    files of ``given/subdir`` (``subdir`` or, unless ``auto`` or :data:`EVERY_FOLDER`,
+    ``images``; else ``given``), and with ``images`` :data:`EVERY_FOLDER` those of its
+    subfolders too.
     ``kind`` ``auto`` becomes ``linear`` for a layout folder documented as linear (images_wb).
     """
     if layout is None:
-        folder = resolve_input(Path(given), subdir or (None if images == "auto" else images))
-        return InputImages(folder, subdir or (None if images == "auto" else images),
-                           *select_files(folder, kind))
+        every_folder = images == EVERY_FOLDER
+        named = subdir or (None if images in ("auto", EVERY_FOLDER) else images)
+        folder = resolve_input(Path(given), named)
+        return InputImages(folder, named, *select_files(folder, kind, every_folder))
     found = layout_images(layout, Path(given), images)
     kind = found.kind if found.kind and kind == "auto" else kind
     return InputImages(found.root, found.folder, *select_paths(found.files, kind),
