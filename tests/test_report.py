@@ -83,13 +83,26 @@ def report(tmp_path_factory):
     (logs / "crashed" / "train.log").write_text(
         "Traceback (most recent call last):\n  ...\nRuntimeError: CUDA out of memory\n")
 
+    # stopped after poses (snakemake --until poses): clean logs, the poses results written;
+    # "killed" has the same logs but its train step never wrote its results
+    for dataset in ("stopped", "killed"):
+        (logs / dataset).mkdir(parents=True)
+        (logs / dataset / "ingest.log").write_text("INFO ingest: 3 images written\n")
+        (logs / dataset / "poses.log").write_text("INFO poses: 3 frames written\n")
+        (results / dataset / "ingest").mkdir(parents=True)
+    (results / "stopped" / "poses").mkdir(parents=True)
+    (results / "killed" / "poses").mkdir(parents=True)
+    (logs / "killed" / "train.log").write_text("INFO step 400 loss 0.01\n")
+
     sheet = base / "datasets.tsv"
     sheet.write_text("dataset\tsource\tpath\toptions\n"
                      "sim\tsimulated\t\t\n"
                      "real\tsimulated\t\ttrain.max_minutes=2\n"
                      "broken\tllff\t/data/broken\t\n"
                      "crashed\tllff\t/data/crashed\t\n"
-                     "pending\tllff\t/data/pending\t\n")
+                     "pending\tllff\t/data/pending\t\n"
+                     "stopped\timages\t/data/stopped\t\n"
+                     "killed\timages\t/data/killed\t\n")
     out = base / "results" / "report"
     start = time.perf_counter()
     assert main(["report", "--results", str(results), "--datasets", str(sheet),
@@ -99,16 +112,21 @@ def report(tmp_path_factory):
 
 def test_summary_table_lists_every_dataset_with_status(report):
     table = pd.read_csv(report["out"] / "summary.csv")
-    assert list(table["dataset"]) == ["sim", "real", "broken", "crashed", "pending"]
+    assert list(table["dataset"]) == ["sim", "real", "broken", "crashed", "pending",
+                                      "stopped", "killed"]
     status = dict(zip(table["dataset"], table["status"]))
     assert status == {"sim": "ok", "real": "ok", "broken": "failed", "crashed": "failed",
-                      "pending": "failed"}
+                      "pending": "failed", "stopped": "incomplete", "killed": "failed"}
     rows = table.set_index("dataset")
     assert rows.loc["broken", "failed_step"] == "ingest"
     assert rows.loc["broken", "error"] == ERROR_MESSAGE
     assert rows.loc["crashed", "failed_step"] == "train"
     assert "CUDA out of memory" in rows.loc["crashed", "error"]
     assert "not run" in rows.loc["pending", "error"]
+    assert pd.isna(rows.loc["stopped", "failed_step"])
+    assert rows.loc["stopped", "error"].startswith("stopped after poses: its results are complete")
+    assert rows.loc["killed", "failed_step"] == "train"
+    assert "no 'error:' line; last line of train.log" in rows.loc["killed", "error"]
     evaluated = pd.read_csv(report["out"].parent / "sim" / "evaluate" / "metrics.csv")
     assert rows.loc["sim", "psnr_linear"] == pytest.approx(evaluated["psnr_linear"].mean(),
                                                            rel=1e-5)

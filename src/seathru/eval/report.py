@@ -96,7 +96,7 @@ class DatasetRecord:
     dataset: str
     source: str = ""
     options: str = ""
-    status: str = "ok"                  # "ok" (evaluated) or "failed"
+    status: str = "ok"          # "ok" (evaluated), "failed" or "incomplete" (stopped early)
     failed_step: str | None = None
     error: str | None = None
     summary: EvaluationSummary | None = None
@@ -716,7 +716,8 @@ def render_html(table: pd.DataFrame, records: Sequence[DatasetRecord],
     for _, row in table.iterrows():
         record = by_name.get(row["dataset"])
         warnings = record.warnings if record is not None else []
-        rows.append({"css": "failed" if row["status"] != "ok" else "warn" if warnings else "ok",
+        rows.append({"css": {"ok": "warn" if warnings else "ok", "incomplete": "warn"}.get(
+                         row["status"], "failed"),
                      "warnings": warnings,
                      "cells": [(column, None if not isinstance(v, str) and pd.isna(v) else v)
                                for column, v in row.items()]})

@@ -18,8 +18,8 @@ from pathlib import Path
 import pandas as pd
 
 from seathru.errors import PipelineError
-from seathru.eval.report import (DatasetRecord, StepLog, diagnose_failure, stopped_by,
-                                 training_warnings)
+from seathru.eval.report import (ERROR_LINE, DatasetRecord, StepLog, diagnose_failure,
+                                 stopped_by, training_warnings)
 from seathru.eval.report_plots import STRIP_COLUMNS, strip_views
 from seathru.io.evaluation import read_metrics, read_summary, read_train_log
 from seathru.io.frontier import FRONTIER_NAME, read_frontier
@@ -54,9 +54,15 @@ def collect_record(row: pd.Series, results: Path, logs: Path | None, step_order:
     except PipelineError as exc:   # a damaged summary fails this dataset, not the report
         record.status, record.failed_step, record.error = "failed", "evaluate", str(exc)
     if record.summary is None and record.status == "ok":
+        step_logs = read_step_logs(logs, dataset)
         record.status = "failed"
-        record.failed_step, record.error = diagnose_failure(read_step_logs(logs, dataset),
-                                                            step_order)
+        record.failed_step, record.error = diagnose_failure(step_logs, step_order)
+        finished = stopped_after(step_logs, [base, Path(results) / record.base])
+        if finished is not None:
+            record.status, record.failed_step = "incomplete", None
+            record.error = (f"stopped after {finished}: its results are complete and no later "
+                            "step has run (the workflow was stopped early, e.g. by --until, or "
+                            "is still running); run it again to continue")
     metrics_path = base / "evaluate" / "metrics.csv"
     if record.summary is not None and metrics_path.is_file():
         record.metrics = read_metrics(metrics_path)
@@ -85,6 +91,17 @@ def collect_record(row: pd.Series, results: Path, logs: Path | None, step_order:
     record.warnings.sort(key=lambda w: step_order.index(w["step"]) if w["step"] in step_order
                          else len(step_order))
     return record
+
+
+def stopped_after(step_logs: Sequence[StepLog], folders: Sequence[Path]) -> str | None:
+    """The step a dataset without results stopped after, where that is all that happened: no
+    log has an error line (``seathru.eval.report.ERROR_LINE``) and the step of the newest log
+    wrote its results (``<folder>/<step>/``, written atomically, so present only when the step
+    finished). None otherwise: a failure, or no logs."""
+    if not step_logs or any(ERROR_LINE.search(line) for log in step_logs for line in log.lines):
+        return None
+    newest = max(step_logs, key=lambda log: log.mtime)
+    return newest.step if any((Path(f) / newest.step).is_dir() for f in folders) else None
 
 
 def read_run_record(model_path: Path) -> dict | None:

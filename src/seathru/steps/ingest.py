@@ -87,9 +87,8 @@ class Settings:
     stats_pixels: int = setting(
         100_000, help="pixels sampled per image for dataset statistics")
     images: str = setting(
-        "auto", help="image folder in the dataset's path: auto (llff prefers images_wb; see "
-                     "the sheet's sources), a name (images_wb, images_4, DCIM/100GOPRO, ...) "
-                     "or all: every image under the path, subfolders included")
+        "auto", help="image folder in the path: auto (llff: images_wb first), a name (images_4, "
+                     "DCIM/100GOPRO, ...) or all: every image under the path, subfolders too")
     warn_clipped_share: float = setting(
         0.1, help="warn about images with more than this share of clipped pixels")
 
