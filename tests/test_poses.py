@@ -502,6 +502,35 @@ def test_known_focal_from_the_manifest_can_be_held_fixed(shared_data, tmp_path):
     assert frame.fx == pytest.approx(expected) and frame.fy == pytest.approx(expected)
 
 
+def test_images_of_two_sizes_get_a_camera_each_unless_one_is_asked_for(shared_data, tmp_path):
+    """Every other fern frame cropped to 16:9 (a camera switched between modes): the default
+    (auto) gives those images cameras of their own; one shared camera fails, naming the
+    setting."""
+    ingest = tmp_path / "ingest"
+    for folder in ("matching", "linear"):
+        (ingest / folder).mkdir(parents=True)
+    paths = sorted((shared_data / "fern_llff" / "images_8").glob("*.png"))[:8]
+    for index, path in enumerate(paths):
+        image = cv2.imread(str(path))
+        if index % 2:
+            image = image[47:47 + 284]
+        for folder in ("matching", "linear"):
+            cv2.imwrite(str(ingest / folder / path.name), image)
+    with pytest.raises(PipelineError, match="poses.camera_mode to auto or per-image"):
+        run_poses("--ingest", str(ingest), "--out", str(tmp_path / "single"), "--threads",
+                  THREADS, "--no-cross-check", "--camera-mode", "single")
+    out = tmp_path / "poses"
+    run_poses("--ingest", str(ingest), "--out", str(out), "--threads", THREADS,
+              "--no-cross-check")
+    frames = read_cameras(out / "cameras.json").frames
+    assert len(frames) >= 6
+    cropped = {path.stem for index, path in enumerate(paths) if index % 2}
+    # undistorted to pinhole cameras of their own, a few pixels smaller
+    for frame in frames:
+        assert (frame.height < 290) == (frame.name in cropped), (frame.name, frame.height)
+    assert len({f.name in cropped for f in frames}) == 2
+
+
 def test_unrelated_images_fail_with_advice_and_leave_nothing(tmp_path):
     import skimage.data
 

@@ -27,12 +27,16 @@ MATCHERS: tuple[str, ...] = get_args(Matcher)
 MAPPERS: tuple[str, ...] = get_args(Mapper)
 
 
+#: ``poses.camera_mode`` as :attr:`SfmSettings.single_camera`.
+SINGLE_CAMERA = {"auto": None, "single": True, "per-image": False}
+
+
 @dataclass(frozen=True)
 class SfmSettings:
     """Everything that changes a COLMAP run; recorded as is in the report."""
 
     camera_model: str = "SIMPLE_RADIAL"
-    single_camera: bool = True
+    single_camera: bool | None = True   # None: one camera if the images share one size
     matcher: str = "sequential"
     overlap: int = 10
     mapper: str = "incremental"

@@ -341,7 +341,12 @@ def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: Q
                                              clahe_clip if clahe else None, clahe_tiles)
     if settings.single_camera and size is None:
         raise PipelineError(f"{ingest.root / 'matching'}: images have different sizes, so they "
-                            f"cannot share one camera; use --camera-mode per-image")
+                            f"cannot share one camera; set poses.camera_mode to auto or "
+                            f"per-image (--camera-mode)")
+    if settings.single_camera is None:
+        settings = replace(settings, single_camera=size is not None)
+        if size is None:
+            log.info("the images have different sizes: one camera per image")
     focal_px, focal_source = (None, "not used (images of different sizes)")
     if size is not None:
         try:
