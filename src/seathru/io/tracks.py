@@ -125,11 +125,9 @@ def window_samples(cameras: CameraSet, obs: TrackObservations, window: float = T
 
     Why a window and not the pixel: the tracks' pixels are feature points, blobs and corners.
     Seen near, the pixel resolves the blob; seen far, it averages the blob with what surrounds
-    it, so a dark blob brightens with range and a bright one darkens, whatever the water. On
-    the real d3_reef frames the pixels' pooled green slope is 0.17 per unit of range, 0.10 over
-    windows (dark blobs 0.37 and bright ones -0.07 at the pixel, both 0.10 over windows). The
-    same points sample the input, the renders and the restored photographs, so all are
-    averaged alike.
+    it, so a dark blob brightens with range and a bright one darkens, whatever the water
+    (measured on d3_reef: docs/water.md, "The tracks' colour over windows"). The same points
+    sample the input, the renders and the restored photographs, so all are averaged alike.
 
     Args:
         cameras: the camera file the observations' pixels refer to.
