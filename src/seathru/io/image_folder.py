@@ -59,20 +59,25 @@ def _visible_folders(folder: Path) -> list[Path]:
             if not path.name.startswith(".") and path.is_dir() and not path.is_symlink()]
 
 
+def _folders_below(folder: Path, depth: int | None = None) -> list[Path]:
+    """The visible subfolders of ``folder`` (links to folders skipped), level by level, at most
+    ``depth`` levels down (None: all)."""
+    found: list[Path] = []
+    level = _visible_folders(folder)
+    while level and (depth is None or depth > 0):
+        found += level
+        level = [deeper for sub in level for deeper in _visible_folders(sub)]
+        depth = None if depth is None else depth - 1
+    return found
+
+
 def image_subfolders(folder: Path, depth: int = 3) -> list[tuple[str, int]]:
     """The subfolders of ``folder`` that hold image files, at most ``depth`` levels down
     (hidden folders skipped): ``(relative POSIX path, image count)`` in path order."""
-    found: list[tuple[str, int]] = []
-    level = _visible_folders(folder)
-    for _ in range(depth):
-        deeper: list[Path] = []
-        for sub in level:
-            count = sum(1 for f in _visible_files(sub) if detect_kind(f))
-            if count:
-                found.append((sub.relative_to(folder).as_posix(), count))
-            deeper += _visible_folders(sub)
-        level = deeper
-    return sorted(found)
+    counts = [(sub.relative_to(folder).as_posix(),
+               sum(1 for f in _visible_files(sub) if detect_kind(f)))
+              for sub in _folders_below(folder, depth)]
+    return sorted((name, count) for name, count in counts if count)
 
 
 def every_image_file(folder: Path) -> list[tuple[Path, str]]:
@@ -82,14 +87,7 @@ def every_image_file(folder: Path) -> list[tuple[Path, str]]:
     named by its path instead, as ``seathru.io.dataset_readers.frame_names`` does
     (``DCIM/101GOPRO/G0010.JPG``: ``DCIM__101GOPRO__G0010``). A RAW and a JPEG of one shot
     share a stem in one folder, which is not a repeat."""
-    files: list[Path] = []
-    level = [folder]
-    while level:
-        deeper: list[Path] = []
-        for sub in level:
-            files += _visible_files(sub)
-            deeper += _visible_folders(sub)
-        level = deeper
+    files = [path for sub in [folder, *_folders_below(folder)] for path in _visible_files(sub)]
     files.sort(key=lambda path: path.relative_to(folder).as_posix())
     folders_of: dict[str, set[Path]] = {}
     for path in files:
