@@ -83,19 +83,51 @@ def _ray_directions(cameras, obs) -> np.ndarray:
     return directions
 
 
-def _open_water(cameras) -> tuple[np.ndarray, list[float]]:
-    """Median open-water colour of the training views and each frame's open-water share."""
+def _open_water(cameras, obs) -> tuple[np.ndarray, list[float], np.ndarray]:
+    """Median open-water colour of the training views, each frame's open-water share and each
+    observation's distance in its image to the nearest open-water pixel (pixels; inf in a frame
+    without open water)."""
+    from scipy.ndimage import distance_transform_edt
+
     from seathru.io.images import read_image
     from seathru.radiometry.open_water import open_water_mask
 
     pixels, shares = [], []
-    for frame in cameras.frames:
+    distance = np.full(len(obs.rows), np.inf)
+    for index, frame in enumerate(cameras.frames):
         image = np.asarray(read_image(cameras.image_path(frame))[..., :3], np.float64)
         mask = open_water_mask(image)
         shares.append(float(mask.mean()))
         if frame.split == "train" and mask.any():
             pixels.append(image[mask][:: max(1, int(mask.sum()) // 5000)])
-    return np.median(np.concatenate(pixels), 0), shares
+        here = obs.frames == index
+        if mask.any() and here.any():
+            distance[here] = distance_transform_edt(~mask)[obs.rows[here], obs.cols[here]]
+    colour = np.median(np.concatenate(pixels), 0) if pixels else np.full(3, np.nan)
+    return colour, shares, distance
+
+
+def _with_covariates(obs, colours, covariates: dict[str, np.ndarray]) -> list[str]:
+    """Rows of a table: the within-track least-squares slope of log colour on range alone and
+    beside each covariate (also centred within tracks), per channel, with the covariate's own
+    coefficient."""
+    _, track, counts = np.unique(obs.track_ids, return_inverse=True, return_counts=True)
+    keep = counts[track] >= 2
+
+    def centred(values):
+        means = np.bincount(track, values, counts.size) / counts
+        return (values - means[track])[keep]
+
+    ranges = centred(obs.ranges)
+    rows = []
+    for name, covariate in {"range alone": None, **covariates}.items():
+        columns = [ranges] if covariate is None else [ranges, centred(covariate)]
+        design = np.stack(columns, 1)
+        fits = [np.linalg.lstsq(design, centred(np.log(np.maximum(colours[:, c], 1e-3))),
+                                rcond=None)[0] for c in range(3)]
+        extra = "—" if covariate is None else _fmt([fit[1] for fit in fits])
+        rows.append(f"| {name} | {_fmt([fit[0] for fit in fits])} | {extra} |")
+    return rows
 
 
 def _offset_fit(obs, colours, shares) -> list[str]:
@@ -239,7 +271,7 @@ def main() -> None:
         lines.append(f"| {name} | {int(keep.sum())} | {_fmt(_slopes(obs, obs.observed, keep))} "
                      f"| {_fmt(_slopes(obs, windowed, keep))} |")
 
-    open_water, shares = _open_water(cameras)
+    open_water, shares, distance = _open_water(cameras, obs)
     brightness = pd.Series(windowed[:, 1]).groupby(obs.track_ids).transform("median").to_numpy()
     thirds = np.quantile(brightness, [1 / 3, 2 / 3])
     lines += ["", f"The tracked surfaces' median colour over windows {_fmt(np.median(windowed, 0))}"
@@ -267,6 +299,17 @@ def main() -> None:
         lines.append(f"| {name} | {np.min(elevation[keep]):.0f} to {np.max(elevation[keep]):.0f}"
                      f" | {_fmt(_slopes(obs, windowed, keep))} |")
 
+    seen = np.isfinite(distance)
+    heights = np.array([f.height for f in cameras.frames], np.float64)[obs.frames]
+    lines += ["", "Log colour over windows against range, alone and beside one more term, all "
+              "within tracks (observations in frames with open water: "
+              f"{int(seen.sum())} of {len(seen)}); the term's own coefficient per unit of it:",
+              "", "| fitted on | range slope | the term's coefficient |", "|---|---|---|",
+              *_with_covariates(obs, windowed, {
+                  "range and log(1 + pixels to the nearest open water in the image)":
+                      np.log1p(np.where(seen, distance, 1e4)),
+                  "range and the image row (share of the height)": obs.rows / heights,
+                  "range and the ray's elevation (degrees)": elevation})]
     lines += ["", "Linear colour over windows, with one intercept per track: the slope alone and "
               "with one additive offset per frame; the offsets' correlation with the frame's "
               "open-water share and with its tracks' mean range:", "",
