@@ -11,9 +11,9 @@ import pandas as pd
 import pytest
 
 from seathru.eval import summary as dataset_summary
-from seathru.eval.report import (NOT_RUN, DatasetRecord, StepLog, diagnose_failure, medium_name,
-                                 held_out_plateau, psnr_rise, render_html, stopped_by,
-                                 summary_table, training_warnings)
+from seathru.eval.report import (NOT_RUN, DatasetRecord, StepLog, diagnose_failure,
+                                 evaluation_warnings, held_out_plateau, medium_name, psnr_rise,
+                                 render_html, stopped_by, summary_table, training_warnings)
 from seathru.eval.summary import EvaluationSummary, RenderSpeed, TrainingSummary
 from seathru.steps import STEP_ORDER
 
@@ -640,3 +640,27 @@ def test_html_shows_slopes_per_channel_against_the_goal_and_why_a_part_is_missin
     assert "of tracks" not in lagoon      # an evaluation from before the near/far split
     plain = render_html(summary_table(records[2:3]), records[2:3], {}, {}, "now")
     assert "COLMAP tracks" not in plain and "track_slope" not in plain
+
+
+def test_brighter_near_open_water_warns_with_the_slope_beside_it():
+    """d3_reef's reading (coefficients -0.33, -0.32, -0.28 at 23-32 standard errors) warns, with
+    the darkening per doubling of distance (2 ** c) and the slopes with and without the term;
+    the demo's (within 0.005 of 0), a loose fit or a single channel does not."""
+    summary = _summary("reef", 17.0)
+    summary.track_colour_slope = _track_slope(0.5)
+    part = summary.track_colour_slope["all_views"]
+    part["near_open_water"] = {"slope": [-0.109, 0.006, 0.083], "stderr": [0.009] * 3,
+                               "coefficient": [-0.328, -0.317, -0.276],
+                               "coefficient_stderr": [0.012, 0.010, 0.009], "observations": 19156}
+    [warning] = evaluation_warnings(summary)
+    assert warning["step"] == "evaluate" and warning["code"] == "brighter_near_open_water"
+    darker = [f"{100 * (1 - 2 ** c):.0f}%" for c in (-0.328, -0.317, -0.276)]
+    assert darker == ["20%", "20%", "17%"] and ", ".join(darker) in warning["message"]
+    assert "-0.109, 0.006, 0.083" in warning["message"]
+    for coefficient, stderr in (([-0.005, 0.001, -0.001], [0.003] * 3),      # the demo
+                                ([-0.3, -0.3, -0.3], [0.2] * 3),              # not measured
+                                ([-0.3, 0.0, 0.0], [0.01] * 3)):              # one channel
+        part["near_open_water"].update(coefficient=coefficient, coefficient_stderr=stderr)
+        assert evaluation_warnings(summary) == []
+    del part["near_open_water"]
+    assert evaluation_warnings(summary) == [] and evaluation_warnings(None) == []

@@ -12,8 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seathru.eval.track_slope import (colour_slope_summary, far_tracks, slope_reduction,
-                                      track_slope)
+from seathru.eval.track_slope import (colour_slope_summary, far_tracks, slope_beside,
+                                      slope_reduction, track_slope)
 from seathru.io import tracks as tracks_io
 from seathru.io.cameras import CameraSet, Frame
 from seathru.io.images import write_float_tiff
@@ -434,3 +434,64 @@ def test_depth_observations_keep_training_views_and_their_rays_end_at_the_points
     cameras.frames[0].far = 0.2
     fewer = depth_rays(cameras.frames, obs.frames, obs.points, obs.observed)
     assert len(fewer) == int((obs.frames == 2).sum())
+
+
+def test_slope_beside_recovers_range_and_the_other_term_as_least_squares_does():
+    """Log colour = the point's own + 0.05 range - 0.3 term (+ noise): the joint within-track
+    fit recovers both, equals least squares on the within-centred design (the float64
+    reference), and its standard errors cover the truth; alone, the range slope soaks up the
+    term where the two vary together."""
+    rng = np.random.default_rng(7)
+    ids = np.repeat(np.arange(400), 5)
+    ranges = rng.uniform(1.0, 6.0, ids.size)
+    term = 0.5 * ranges + rng.normal(0.0, 1.0, ids.size)         # correlated with range
+    own = rng.normal(-1.5, 0.5, (400, 3))[ids]
+    truth_slope, truth_term = np.array([0.05, -0.02, 0.1]), np.array([-0.3, -0.3, -0.1])
+    colours = np.exp(own + ranges[:, None] * truth_slope + term[:, None] * truth_term
+                     + rng.normal(0.0, 0.02, (ids.size, 3)))
+    fit = slope_beside(ids, ranges, colours, term)
+    np.testing.assert_allclose(fit.slope, truth_slope, atol=4 * fit.stderr.max())
+    np.testing.assert_allclose(fit.coefficient, truth_term, atol=4 * fit.coefficient_stderr.max())
+    centred = lambda v: v - (np.bincount(ids, v) / np.bincount(ids))[ids]   # noqa: E731
+    design = np.stack([centred(ranges), centred(term)], 1)
+    for c in range(3):
+        reference = np.linalg.lstsq(design, centred(np.log(colours[:, c])), rcond=None)[0]
+        np.testing.assert_allclose([fit.slope[c], fit.coefficient[c]], reference, rtol=1e-9)
+    alone = track_slope(ids, ranges, colours).slope
+    assert abs(alone[0] - truth_slope[0]) > 0.1                      # the term leaks into it
+    # a non-finite term leaves those observations out; a term equal to range cannot be told apart
+    term_gaps = term.copy()
+    term_gaps[:500] = np.inf
+    assert slope_beside(ids, ranges, colours, term_gaps).observations == ids.size - 500
+    assert slope_beside(ids, ranges, colours, 2.0 * ranges) is None
+
+
+def test_windows_measure_the_distance_to_the_open_water_in_each_image(tmp_path, monkeypatch):
+    """Frames whose top rows are smooth bright water above a textured reef: each observation's
+    distance is that to the nearest open-water pixel (brute force as the reference); a frame
+    without water gives inf, and no open water anywhere gives no near_open_water part."""
+    cameras, obs = _tracked_scene(tmp_path, monkeypatch)
+    rng = np.random.default_rng(3)
+    water_rows = {0: 16, 1: 0, 2: 24}
+    for index, frame in enumerate(cameras.frames):
+        rows, cols = np.mgrid[0:frame.height, 0:frame.width]
+        checker = ((rows // 8 + cols // 8) % 2).astype(np.float32)       # rough in 8x8 blocks
+        image = (0.1 + 0.5 * checker[..., None]
+                 + rng.uniform(0.0, 0.05, (frame.height, frame.width, 3))).astype(np.float32)
+        image[:water_rows[index]] = (0.05, 0.3, 0.5)
+        write_float_tiff(tmp_path / "images" / f"{frame.name}.tiff", image)
+    from seathru.radiometry.open_water import open_water_mask
+
+    windows = tracks_io.track_windows(cameras, obs)
+    for index, frame in enumerate(cameras.frames):
+        mask = open_water_mask(tracks_io.read_image(cameras.image_path(frame)))
+        assert mask.any() == (water_rows[index] > 0)
+        assert not mask[water_rows[index] + 8:].any()             # the reef is not water
+        water = np.argwhere(mask)
+        for k in np.flatnonzero(obs.frames == index):
+            expected = np.inf if not water.size else np.sqrt(
+                ((water - [obs.rows[k], obs.cols[k]]) ** 2).sum(1)).min()
+            assert windows.open_water_distance[k] == pytest.approx(expected), k
+    assert tracks_io._near_open_water(obs, windows) is not None
+    windows.open_water_distance[:] = np.inf
+    assert tracks_io._near_open_water(obs, windows) is None

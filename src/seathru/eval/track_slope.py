@@ -93,6 +93,80 @@ def track_slope(track_ids: np.ndarray, ranges: np.ndarray, colours: np.ndarray, 
     return TrackSlope(slope, stderr, n_tracks, int(used.sum()))
 
 
+@dataclass(frozen=True)
+class SlopeBeside:
+    """The within-track slope on range fitted together with one more term.
+
+    Attributes:
+        slope, stderr: (C,) the range slope and its cluster-robust standard error.
+        coefficient, coefficient_stderr: (C,) the term's own, likewise.
+        observations: observations used.
+    """
+
+    slope: np.ndarray
+    stderr: np.ndarray
+    coefficient: np.ndarray
+    coefficient_stderr: np.ndarray
+    observations: int
+
+
+def slope_beside(track_ids: np.ndarray, ranges: np.ndarray, colours: np.ndarray,
+                 term: np.ndarray, *, floor: float = 1e-3) -> SlopeBeside | None:
+    """The within-track least-squares fit of log colour on range and ``term`` together.
+
+    Both regressors are centred within each track, as in :func:`track_slope`; the standard
+    errors are cluster-robust by track (sandwich). Observations with a non-finite term are left
+    out. Used to ask whether the colour change with range is something else the views vary
+    along: on d3_reef, the distance to the open water in the image.
+
+    Args:
+        track_ids, ranges: (N,) as for :func:`track_slope`.
+        colours: (N, C) linear colour.
+        term: (N,) the other regressor.
+
+    Returns:
+        the fit, or None when fewer than two tracks have two observations with a finite term,
+        or the two regressors are collinear.
+
+    Example::
+
+        fit = slope_beside(ids, ranges, rgb, np.log1p(pixels_to_open_water))
+    """
+    keep = np.isfinite(np.asarray(term, dtype=np.float64))
+    ids = np.asarray(track_ids)[keep]
+    x = np.stack([np.asarray(ranges, dtype=np.float64)[keep],
+                  np.asarray(term, dtype=np.float64)[keep]], 1)
+    values = np.asarray(colours, dtype=np.float64)[keep]
+    values = values[:, None] if values.ndim == 1 else values
+    y = np.log(np.maximum(values, floor))
+    _, index, counts = np.unique(ids, return_inverse=True, return_counts=True)
+    used = counts[index] >= 2
+    if int((counts >= 2).sum()) < 2:
+        return None
+
+    def centred(v: np.ndarray) -> np.ndarray:
+        means = np.stack([np.bincount(index, v[:, k], counts.size) for k in range(v.shape[1])],
+                         1) / counts[:, None]
+        return (v - means[index])[used]
+
+    cx, cy, where = centred(x), centred(y), index[used]
+    gram = cx.T @ cx
+    if np.linalg.cond(gram) > 1e12:
+        return None
+    inverse = np.linalg.inv(gram)
+    beta = inverse @ cx.T @ cy                                   # (2, C)
+    residual = cy - cx @ beta
+    tracks = int(np.unique(where).size)
+    correction = tracks / max(tracks - 1, 1)
+    errors = np.zeros_like(beta)
+    for c in range(cy.shape[1]):
+        scores = np.stack([np.bincount(where, cx[:, k] * residual[:, c], counts.size)
+                           for k in range(2)], 1)
+        covariance = correction * inverse @ (scores.T @ scores) @ inverse
+        errors[:, c] = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    return SlopeBeside(beta[0], errors[0], beta[1], errors[1], int(used.sum()))
+
+
 def slope_reduction(input_slope: np.ndarray, restored_slope: np.ndarray) -> np.ndarray:
     """``1 - |restored| / |input|`` per channel: 1 when the restoration removed every range
     dependence, 0 when it left it as it was, negative when it made it worse (NaN where the input

@@ -19,7 +19,7 @@ import pandas as pd
 
 from seathru.errors import PipelineError
 from seathru.eval.report import (ERROR_LINE, DatasetRecord, StepLog, diagnose_failure,
-                                 stopped_by, training_warnings)
+                                 evaluation_warnings, stopped_by, training_warnings)
 from seathru.eval.report_plots import STRIP_COLUMNS, strip_views
 from seathru.io.evaluation import read_metrics, read_summary, read_train_log
 from seathru.io.frontier import FRONTIER_NAME, read_frontier
@@ -87,7 +87,8 @@ def collect_record(row: pd.Series, results: Path, logs: Path | None, step_order:
     stopped = (stopped_by(train_log[0].lines) if train_log else None) or (
         record.training_run or {}).get("stopped_by")
     record.warnings = read_dataset_warnings(base, step_order) + training_warnings(
-        selection, record.train_log, stopped, rising_db, window)
+        selection, record.train_log, stopped, rising_db, window) + evaluation_warnings(
+        record.summary)
     record.warnings.sort(key=lambda w: step_order.index(w["step"]) if w["step"] in step_order
                          else len(step_order))
     return record

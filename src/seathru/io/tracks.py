@@ -184,6 +184,9 @@ class TrackWindows:
     points: np.ndarray     # (N, S, 2) sample points, the frame's pixel coordinates
     valid: np.ndarray      # (N, S) bool: the sample lies on valid input pixels
     observed: np.ndarray   # (N, 3) input linear colour, the mean over the valid samples
+    # (N,) pixels from the observation to the nearest open water in its input image
+    # (seathru.radiometry.open_water), inf in a frame that shows none
+    open_water_distance: np.ndarray | None = None
 
 
 def track_windows(cameras: CameraSet, obs: TrackObservations, window: float = TRACK_WINDOW,
@@ -200,9 +203,14 @@ def track_windows(cameras: CameraSet, obs: TrackObservations, window: float = TR
         windows = track_windows(cameras, obs)
         fit = track_slope(obs.track_ids, obs.ranges, windows.observed)
     """
+    from scipy.ndimage import distance_transform_edt
+
+    from seathru.radiometry.open_water import open_water_mask
+
     points = window_samples(cameras, obs, window, grid)
     valid = np.ones(points.shape[:2], bool)
     values = np.zeros((*points.shape[:2], 3))
+    distance = np.full(len(obs.rows), np.inf)
     for index, frame in enumerate(cameras.frames):
         here = np.flatnonzero(obs.frames == index)
         if here.size == 0:
@@ -215,8 +223,11 @@ def track_windows(cameras: CameraSet, obs: TrackObservations, window: float = TR
             good &= mask[..., 0] if mask.ndim == 3 else mask
         values[here] = _sample(np.nan_to_num(image), points[here])
         valid[here] = _sample(good[..., None].astype(np.float64), points[here])[..., 0] > 0.999
+        water = open_water_mask(np.nan_to_num(image), valid=good)
+        if water.any():
+            distance[here] = distance_transform_edt(~water)[obs.rows[here], obs.cols[here]]
     valid[~valid.any(1)] = True
-    return TrackWindows(points, valid, _window_mean(values, valid))
+    return TrackWindows(points, valid, _window_mean(values, valid), distance)
 
 
 def observation_rays(cameras: CameraSet, obs: TrackObservations,
@@ -378,6 +389,9 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
         if photo is not None:
             result[name]["photographs"] = colour_slope_summary(
                 obs.track_ids[keep], obs.ranges[keep], photo[0][keep], photo[1][keep])
+    beside = _near_open_water(obs, windows)
+    if beside is not None and "reduction" in result.get("all_views", {}):
+        result["all_views"]["near_open_water"] = beside
     headline = result.get("all_views", {})
     if "reduction" in headline:
         log.info("track colour slope (log colour per unit range, R G B): input %s, full render "
@@ -385,6 +399,28 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
                  _fmt(headline["rendered"]["slope"]), _fmt(headline["restored"]["slope"]),
                  _fmt(headline["reduction"]))
     return result
+
+
+def _near_open_water(obs: TrackObservations, windows: TrackWindows) -> dict | None:
+    """``track_colour_slope``'s ``near_open_water``: the input's log colour over windows fitted
+    within tracks on range together with log(1 + pixels to the nearest open water in the image)
+    (``seathru.eval.track_slope.slope_beside``). A negative ``coefficient`` says the same
+    surface is brighter where its image shows it next to the open water (veiling glare in the
+    housing's port or in-camera tone mapping; docs/water.md), which the water model does not
+    explain. None without open water in the frames."""
+    from seathru.eval.track_slope import slope_beside
+
+    distance = windows.open_water_distance
+    if distance is None or not np.isfinite(distance).any():
+        return None
+    fit = slope_beside(obs.track_ids, obs.ranges, windows.observed, np.log1p(distance))
+    if fit is None:
+        return None
+    return {"term": "log(1 + pixels from the observation to the nearest open water in its image)",
+            "slope": fit.slope.tolist(), "stderr": fit.stderr.tolist(),
+            "coefficient": fit.coefficient.tolist(),
+            "coefficient_stderr": fit.coefficient_stderr.tolist(),
+            "observations": fit.observations}
 
 
 def _fmt(values) -> str:
