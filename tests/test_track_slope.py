@@ -482,7 +482,8 @@ def test_windows_measure_the_distance_to_the_open_water_in_each_image(tmp_path, 
         write_float_tiff(tmp_path / "images" / f"{frame.name}.tiff", image)
     from seathru.radiometry.open_water import open_water_mask
 
-    windows = tracks_io.track_windows(cameras, obs)
+    assert tracks_io.track_windows(cameras, obs).open_water_distance is None
+    windows = tracks_io.track_windows(cameras, obs, open_water=True)
     for index, frame in enumerate(cameras.frames):
         mask = open_water_mask(tracks_io.read_image(cameras.image_path(frame)))
         assert mask.any() == (water_rows[index] > 0)

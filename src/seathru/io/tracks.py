@@ -185,13 +185,14 @@ class TrackWindows:
     valid: np.ndarray      # (N, S) bool: the sample lies on valid input pixels
     observed: np.ndarray   # (N, 3) input linear colour, the mean over the valid samples
     # (N,) pixels from the observation to the nearest open water in its input image
-    # (seathru.radiometry.open_water), inf in a frame that shows none
+    # (seathru.radiometry.open_water), inf in a frame that shows none; None unless asked for
     open_water_distance: np.ndarray | None = None
 
 
 def track_windows(cameras: CameraSet, obs: TrackObservations, window: float = TRACK_WINDOW,
-                  grid: int = WINDOW_GRID) -> TrackWindows:
-    """The observations' windows (:func:`window_samples`) and the input's colour over each.
+                  grid: int = WINDOW_GRID, open_water: bool = False) -> TrackWindows:
+    """The observations' windows (:func:`window_samples`) and the input's colour over each;
+    with ``open_water``, also each observation's distance to the open water in its image.
 
     A sample counts where the input image is finite and inside the frame's mask at all four
     pixels it interpolates (undistortion leaves invalid borders); the renders and restored
@@ -223,11 +224,12 @@ def track_windows(cameras: CameraSet, obs: TrackObservations, window: float = TR
             good &= mask[..., 0] if mask.ndim == 3 else mask
         values[here] = _sample(np.nan_to_num(image), points[here])
         valid[here] = _sample(good[..., None].astype(np.float64), points[here])[..., 0] > 0.999
-        water = open_water_mask(np.nan_to_num(image), valid=good)
-        if water.any():
+        water = open_water_mask(np.nan_to_num(image), valid=good) if open_water else None
+        if water is not None and water.any():
             distance[here] = distance_transform_edt(~water)[obs.rows[here], obs.cols[here]]
     valid[~valid.any(1)] = True
-    return TrackWindows(points, valid, _window_mean(values, valid), distance)
+    return TrackWindows(points, valid, _window_mean(values, valid),
+                        distance if open_water else None)
 
 
 def observation_rays(cameras: CameraSet, obs: TrackObservations,
@@ -354,7 +356,7 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
     if not Path(model_path).is_file():
         return {"source": "none", "reason": f"{model_path}: no trained model"}
     obs = track_observations(cameras, model_dir)
-    windows = track_windows(cameras, obs)
+    windows = track_windows(cameras, obs, open_water=True)
     observed = windows.observed
     photo = None if renders is None else restored_photo_colours(renders, cameras, obs, windows)
     result: dict = {"source": str(model_dir), "range_units": "source units (COLMAP's)",
