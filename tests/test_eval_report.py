@@ -656,7 +656,13 @@ def test_brighter_near_open_water_warns_with_the_slope_beside_it():
     assert warning["step"] == "evaluate" and warning["code"] == "brighter_near_open_water"
     darker = [f"{100 * (1 - 2 ** c):.0f}%" for c in (-0.328, -0.317, -0.276)]
     assert darker == ["20%", "20%", "17%"] and ", ".join(darker) in warning["message"]
-    assert "-0.109, 0.006, 0.083" in warning["message"]
+    assert "-0.109, 0.006, 0.083" in warning["message"] and "removed" not in warning["message"]
+    part["near_open_water"]["restored"] = {"reduction_overall": 0.948}
+    part["near_open_water"]["photographs"] = {"reduction_overall": 0.881}
+    [warning] = evaluation_warnings(summary)
+    assert ("of that change the restored render 95% and the restored photographs 88% removed"
+            in warning["message"])
+    assert warning["details"]["removed_beside"] == {"restored": 0.948, "photographs": 0.881}
     for coefficient, stderr in (([-0.005, 0.001, -0.001], [0.003] * 3),      # the demo
                                 ([-0.3, -0.3, -0.3], [0.2] * 3),              # not measured
                                 ([-0.3, 0.0, 0.0], [0.01] * 3)):              # one channel

@@ -494,5 +494,11 @@ def test_windows_measure_the_distance_to_the_open_water_in_each_image(tmp_path, 
                 ((water - [obs.rows[k], obs.cols[k]]) ** 2).sum(1)).min()
             assert windows.open_water_distance[k] == pytest.approx(expected), k
     assert tracks_io._near_open_water(obs, windows) is not None
+    # a restoration that keeps the input's colour removes nothing; one flat in range, all
+    beside = tracks_io._near_open_water(obs, windows, {"same": windows.observed,
+                                                       "flat": np.ones_like(windows.observed)})
+    assert beside["same"]["slope"] == pytest.approx(beside["slope"])
+    assert beside["same"]["reduction_overall"] == pytest.approx(0.0, abs=1e-9)
+    assert beside["flat"]["reduction_overall"] == pytest.approx(1.0)
     windows.open_water_distance[:] = np.inf
     assert tracks_io._near_open_water(obs, windows) is None

@@ -466,16 +466,23 @@ def evaluation_warnings(summary: EvaluationSummary | None) -> list[dict]:
                        for c in coefficients)
     beside_slope = ", ".join(f"{v:.3f}" for v in beside.get("slope") or [])
     alone = ", ".join(f"{v:.3f}" for v in (part.get("input") or {}).get("slope") or [])
+    removed = [f"{label} {100 * share:.0f}%" for label, key in
+               (("the restored render", "restored"), ("the restored photographs", "photographs"))
+               if (share := _finite((beside.get(key) or {}).get("reduction_overall")))
+               is not None]
+    of_that = f"; of that change {' and '.join(removed)} removed" if removed else ""
     message = (f"the photographs are brighter next to the open water in the frame: the same "
                f"surface is {darker} (R, G, B) darker each time its distance to the open water "
                f"in the image doubles. With that taken into account the colour changes with "
                f"range by {beside_slope} per unit along the COLMAP tracks, against {alone} "
-               f"without. Veiling glare in the housing's port or a camera's local tone mapping "
-               f"do this, the water does not: the restored images keep it, and the track "
-               f"slope measures it as well as the water.")
+               f"without{of_that}. Veiling glare in the housing's port or a camera's local "
+               f"tone mapping do this, the water does not: the restored images keep it, and the "
+               f"track slope (track_slope_reduction) measures it as well as the water.")
     return [{"step": "evaluate", "code": "brighter_near_open_water", "message": message,
              "details": {"coefficient": coefficients, "coefficient_stderr": errors,
-                         "slope_beside": beside.get("slope")}}]
+                         "slope_beside": beside.get("slope"),
+                         "removed_beside": {key: (beside.get(key) or {}).get("reduction_overall")
+                                            for key in ("restored", "photographs")}}}]
 
 
 def _slope_part(slope: dict | None, key: str) -> dict | None:

@@ -391,9 +391,13 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
         if photo is not None:
             result[name]["photographs"] = colour_slope_summary(
                 obs.track_ids[keep], obs.ranges[keep], photo[0][keep], photo[1][keep])
-    beside = _near_open_water(obs, windows)
-    if beside is not None and "reduction" in result.get("all_views", {}):
-        result["all_views"]["near_open_water"] = beside
+    if rendered is not None and "reduction" in result.get("all_views", {}):
+        restorations = {"restored": rendered["restored"]}
+        if photo is not None:
+            restorations["photographs"] = photo[1]
+        beside = _near_open_water(obs, windows, restorations)
+        if beside is not None:
+            result["all_views"]["near_open_water"] = beside
     headline = result.get("all_views", {})
     if "reduction" in headline:
         log.info("track colour slope (log colour per unit range, R G B): input %s, full render "
@@ -403,26 +407,41 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
     return result
 
 
-def _near_open_water(obs: TrackObservations, windows: TrackWindows) -> dict | None:
+def _near_open_water(obs: TrackObservations, windows: TrackWindows,
+                     restorations: dict[str, np.ndarray] | None = None) -> dict | None:
     """``track_colour_slope``'s ``near_open_water``: the input's log colour over windows fitted
     within tracks on range together with log(1 + pixels to the nearest open water in the image)
     (``seathru.eval.track_slope.slope_beside``). A negative ``coefficient`` says the same
     surface is brighter where its image shows it next to the open water (veiling glare in the
     housing's port or in-camera tone mapping; docs/water.md), which the water model does not
-    explain. None without open water in the frames."""
-    from seathru.eval.track_slope import slope_beside
+    explain. Each of ``restorations`` ((N, 3) colours by name: the restored render, the
+    restored photographs) is fitted the same way, with the share of the input's range slope
+    (beside the term) it removed. None without open water in the frames."""
+    from seathru.eval.track_slope import slope_beside, slope_reduction
 
     distance = windows.open_water_distance
     if distance is None or not np.isfinite(distance).any():
         return None
-    fit = slope_beside(obs.track_ids, obs.ranges, windows.observed, np.log1p(distance))
+    term = np.log1p(distance)
+    fit = slope_beside(obs.track_ids, obs.ranges, windows.observed, term)
     if fit is None:
         return None
-    return {"term": "log(1 + pixels from the observation to the nearest open water in its image)",
+    part = {"term": "log(1 + pixels from the observation to the nearest open water in its image)",
             "slope": fit.slope.tolist(), "stderr": fit.stderr.tolist(),
             "coefficient": fit.coefficient.tolist(),
             "coefficient_stderr": fit.coefficient_stderr.tolist(),
             "observations": fit.observations}
+    total = float(np.abs(fit.slope).sum())
+    for name, colours in (restorations or {}).items():
+        restored = slope_beside(obs.track_ids, obs.ranges, colours, term)
+        if restored is None:
+            continue
+        part[name] = {"slope": restored.slope.tolist(), "stderr": restored.stderr.tolist(),
+                      "coefficient": restored.coefficient.tolist(),
+                      "reduction": slope_reduction(fit.slope, restored.slope).tolist(),
+                      "reduction_overall": 1.0 - float(np.abs(restored.slope).sum()) / total
+                      if total > 0 else float("nan")}
+    return part
 
 
 def _fmt(values) -> str:
