@@ -108,25 +108,15 @@ def _open_water(cameras, obs) -> tuple[np.ndarray, list[float], np.ndarray]:
 
 
 def _with_covariates(obs, colours, covariates: dict[str, np.ndarray]) -> list[str]:
-    """Rows of a table: the within-track least-squares slope of log colour on range alone and
-    beside each covariate (also centred within tracks), per channel, with the covariate's own
-    coefficient."""
-    _, track, counts = np.unique(obs.track_ids, return_inverse=True, return_counts=True)
-    keep = counts[track] >= 2
+    """Rows of a table: the within-track slope of log colour on range alone
+    (``track_slope``) and beside each covariate (``slope_beside``), per channel, with the
+    covariate's own coefficient."""
+    from seathru.eval.track_slope import slope_beside
 
-    def centred(values):
-        means = np.bincount(track, values, counts.size) / counts
-        return (values - means[track])[keep]
-
-    ranges = centred(obs.ranges)
-    rows = []
-    for name, covariate in {"range alone": None, **covariates}.items():
-        columns = [ranges] if covariate is None else [ranges, centred(covariate)]
-        design = np.stack(columns, 1)
-        fits = [np.linalg.lstsq(design, centred(np.log(np.maximum(colours[:, c], 1e-3))),
-                                rcond=None)[0] for c in range(3)]
-        extra = "—" if covariate is None else _fmt([fit[1] for fit in fits])
-        rows.append(f"| {name} | {_fmt([fit[0] for fit in fits])} | {extra} |")
+    rows = [f"| range alone | {_fmt(_slopes(obs, colours))} | — |"]
+    for name, covariate in covariates.items():
+        fit = slope_beside(obs.track_ids, obs.ranges, colours, covariate)
+        rows.append(f"| {name} | {_fmt(fit.slope)} | {_fmt(fit.coefficient)} |")
     return rows
 
 

@@ -177,6 +177,14 @@ def slope_reduction(input_slope: np.ndarray, restored_slope: np.ndarray) -> np.n
         return np.where(before > 0, 1.0 - after / before, np.nan)
 
 
+def slope_reduction_overall(input_slope: np.ndarray, restored_slope: np.ndarray) -> float:
+    """``1 - sum|restored| / sum|input|`` over the channels (NaN where the input has no slope):
+    the share of the input's range dependence a restoration removed, all channels together."""
+    total = float(np.sum(np.abs(np.asarray(input_slope, dtype=np.float64))))
+    after = float(np.sum(np.abs(np.asarray(restored_slope, dtype=np.float64))))
+    return 1.0 - after / total if total > 0 else float("nan")
+
+
 def far_tracks(track_ids: np.ndarray, ranges: np.ndarray, share: float = 0.9) -> np.ndarray:
     """(N,) bool: the observations of the tracks whose median range lies above the ``share``
     quantile of all tracks' median ranges (the far tail; the rest are the near tracks).
@@ -236,12 +244,10 @@ def colour_slope_summary(track_ids: np.ndarray, ranges: np.ndarray, observed: np
     """
     before = track_slope(track_ids, ranges, observed, log=log, floor=floor)
     after = track_slope(track_ids, ranges, restored, log=log, floor=floor)
-    total = float(np.sum(np.abs(before.slope)))
     summary = {"log_colour": log,
                "input": _record(before), "restored": _record(after),
                "reduction": slope_reduction(before.slope, after.slope).tolist(),
-               "reduction_overall": (1.0 - float(np.sum(np.abs(after.slope))) / total
-                                     if total > 0 else float("nan"))}
+               "reduction_overall": slope_reduction_overall(before.slope, after.slope)}
     if rendered is not None:
         full = track_slope(track_ids, ranges, rendered, log=log, floor=floor)
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -417,7 +417,7 @@ def _near_open_water(obs: TrackObservations, windows: TrackWindows,
     explain. Each of ``restorations`` ((N, 3) colours by name: the restored render, the
     restored photographs) is fitted the same way, with the share of the input's range slope
     (beside the term) it removed. None without open water in the frames."""
-    from seathru.eval.track_slope import slope_beside, slope_reduction
+    from seathru.eval.track_slope import slope_beside, slope_reduction, slope_reduction_overall
 
     distance = windows.open_water_distance
     if distance is None or not np.isfinite(distance).any():
@@ -431,7 +431,6 @@ def _near_open_water(obs: TrackObservations, windows: TrackWindows,
             "coefficient": fit.coefficient.tolist(),
             "coefficient_stderr": fit.coefficient_stderr.tolist(),
             "observations": fit.observations}
-    total = float(np.abs(fit.slope).sum())
     for name, colours in (restorations or {}).items():
         restored = slope_beside(obs.track_ids, obs.ranges, colours, term)
         if restored is None:
@@ -439,8 +438,7 @@ def _near_open_water(obs: TrackObservations, windows: TrackWindows,
         part[name] = {"slope": restored.slope.tolist(), "stderr": restored.stderr.tolist(),
                       "coefficient": restored.coefficient.tolist(),
                       "reduction": slope_reduction(fit.slope, restored.slope).tolist(),
-                      "reduction_overall": 1.0 - float(np.abs(restored.slope).sum()) / total
-                      if total > 0 else float("nan")}
+                      "reduction_overall": slope_reduction_overall(fit.slope, restored.slope)}
     return part
 
 
