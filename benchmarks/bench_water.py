@@ -10,7 +10,7 @@ model's own surfaces with open-water rays and the dark-pixel bound: ``train.medi
 without them (``refit_at=[]``, ``veiling_light_init=false``). Per parameter and channel: the fitted value, its 95% interval, the truth;
 whether the interval holds the truth; whether a parameter outside 5% was flagged as not
 determined; restored-vs-clean PSNR (linear) on the held-out views, beside the full render's.
-Beside water.json's intervals, the robust ones (``water_fit.robust_halfwidths``) recomputed on
+Beside water.json's intervals, the robust ones (``water_uncertainty.robust_halfwidths``) recomputed on
 the final model's surfaces with the function's defaults (``bench_water_intervals.assess_model``:
 without the train step's allowances for range error, grouping and the 1% floor), around the
 trained value widened by its distance to that surface fit. The held-out photographs restored
@@ -318,7 +318,7 @@ def write_results(rows: list[dict], args, seconds: float, machine: str | None = 
              f"cameras for {args.minutes:g} min each (1 CPU thread each, {args.jobs} run(s) at a time); "
              "errors per channel (R, G, B); interval: 95% from water.json's uncertainty; "
              "`?` = flagged as not determined by the views (water.json); robust: "
-             "`water_fit.robust_halfwidths` recomputed on the final model's surfaces with its "
+             "`water_uncertainty.robust_halfwidths` recomputed on the final model's surfaces with its "
              "defaults (no allowance for range error, grouping or the 1% floor), around "
              "the trained value widened by its distance to that fit. Restored and full render "
              "against the clean truth as the evaluate step scores them: open water left out; "

@@ -79,7 +79,8 @@ def covered(centre: dict, halfwidth: dict, truth: dict) -> list[bool]:
 
 
 def synthetic_check(seeds: int) -> list[dict]:
-    from seathru.nerf.water_fit import fit_water, laplace_halfwidths, robust_halfwidths
+    from seathru.nerf.water_fit import fit_water
+    from seathru.nerf.water_uncertainty import laplace_halfwidths, robust_halfwidths
 
     rows = []
     for name, options in SCENARIOS.items():
@@ -156,7 +157,8 @@ def model_surfaces(sim: Path, train: Path):
 def assess_model(sim: Path, train: Path) -> dict:
     """Curvature and robust intervals of one trained model's surface fit against the truth
     (normalised units)."""
-    from seathru.nerf.water_fit import fit_surfaces, laplace_halfwidths, robust_halfwidths
+    from seathru.nerf.water_fit import fit_surfaces
+    from seathru.nerf.water_uncertainty import laplace_halfwidths, robust_halfwidths
 
     data, model, truth, trained, scale = model_surfaces(sim, train)
     record = {"model": f"{sim.name}/{train.name}", "scale": scale, "truth": truth,

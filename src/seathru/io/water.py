@@ -64,13 +64,13 @@ BELOW_HORIZON_NOTE = (
     "light; the intervals allow for such a surface from least_surface_range on")
 UNCERTAINTY_METHOD = (
     "95% prediction intervals around the trained value: a water fit on the model's own "
-    "surfaces (seathru.nerf.water_fit.robust_halfwidths) gives a cluster-robust statistical "
-    "half-width plus a systematic one from how much parts of the data (near/far, the two sides "
-    "of the scene, without open water, without the dark-pixel bound, other voxel groupings, "
-    "noisier depth) disagree and how far the surfaces pull c_med from the open water's colour; "
-    "the interval is widened by the trained value's distance to that fit. A parameter whose "
-    "interval reaches "
-    "more than 25% of its value either side is not determined by the views")
+    "surfaces (seathru.nerf.water_uncertainty.robust_halfwidths) gives a cluster-robust "
+    "statistical half-width plus a systematic one from how much parts of the data (near/far, "
+    "the two sides of the scene, without open water, without the dark-pixel bound, other voxel "
+    "groupings, noisier depth) disagree and how far the surfaces pull c_med from the open "
+    "water's colour; the interval is widened by the trained value's distance to that fit. A "
+    "parameter whose interval reaches more than 25% of its value either side is not "
+    "determined by the views")
 
 
 @dataclass(frozen=True)

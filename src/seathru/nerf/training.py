@@ -41,9 +41,10 @@ from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruc
 from seathru.nerf.model import SeaThruModel
 from seathru.nerf.rays import RayBatch, RayDataset
 from seathru.nerf.medium import DIRECTIONAL_MODES
-from seathru.nerf.water_fit import (SurfaceData, WaterFit, correspondence_rays,
-                                    far_surface_range, fit_surfaces, interval_determined,
-                                    laplace_halfwidths, robust_halfwidths, surface_data)
+from seathru.nerf.water_fit import (SurfaceData, WaterFit, correspondence_rays, fit_surfaces,
+                                    surface_data)
+from seathru.nerf.water_uncertainty import (far_surface_range, interval_determined,
+                                            laplace_halfwidths, robust_halfwidths)
 
 CHECKPOINT_FORMAT = "seathru-train-checkpoint/1"
 WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
@@ -647,9 +648,9 @@ class Trainer:
     @torch.no_grad()
     def assess_water(self, trained: dict | None = None) -> dict | None:
         """How well the images determine the trained water: a fit on the final geometry's
-        surfaces and its robust 95% half-widths (``water_fit.robust_halfwidths``: statistical and
+        surfaces and its robust 95% half-widths (``water_uncertainty.robust_halfwidths``: statistical and
         systematic parts), normalised units; ``determined`` judges the interval around the
-        ``trained`` values (``water_fit.interval_determined``; default: the model's water),
+        ``trained`` values (``water_uncertainty.interval_determined``; default: the model's water),
         ``fit_determined`` the surface fit's own half-widths. None when the medium is neither
         global nor veiling (whose c_med is the mean over directions) or there are too few
         surface pixels."""

@@ -1,5 +1,6 @@
 """The 95% interval ``water.json`` writes around a trained water value, shared by the training
-step's assessment (``water_fit.interval_determined``) and the file format (``seathru.io.water``).
+step's assessment (``water_uncertainty.interval_determined``) and the file format
+(``seathru.io.water``).
 
 Plain floats, no PyTorch: the report and evaluate steps read ``water.json`` without loading it.
 """
