@@ -493,13 +493,13 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
     if balance_brightness:
         for _ in range(2):
             weights = _weights_at(free, ranges, observed, ids, groups, brightness_floor)
-            free = _fit_water(ranges, observed, ids, groups, water_values(free), steps, colour_max,
+            free = _fit_water(ranges, observed, ids, groups, water_start(free), steps, colour_max,
                               weights=weights)
     if dark is None:
         return free
     allowance = noise_allowance(free, ranges, observed, ids, groups)
     dark = (dark[0], dark[1].to(allowance) + allowance)
-    return _fit_water(ranges, observed, ids, groups, water_values(free), steps, colour_max, dark,
+    return _fit_water(ranges, observed, ids, groups, water_start(free), steps, colour_max, dark,
                       dark_weight, weights)
 
 
@@ -592,11 +592,11 @@ def fit_surfaces(data: SurfaceData, start: dict, steps: int = 300, colour_max: f
     if trimmed is data or isinstance(trimmed, str):
         return fit, data
     return fit_water(trimmed.ranges, trimmed.observed, trimmed.ids, trimmed.groups,
-                     water_values(fit),
+                     water_start(fit),
                      steps, colour_max, dark, balance_brightness=balance_brightness), trimmed
 
 
-def water_values(fit: WaterFit) -> dict[str, list[float]]:
+def water_start(fit: WaterFit) -> dict[str, list[float]]:
     """The fit's water by name, as :func:`fit_water` takes its ``start``."""
     return {key: getattr(fit, key) for key in NAMES}
 

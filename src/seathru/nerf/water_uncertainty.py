@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from seathru.nerf.water_fit import (NAMES, WaterFit, fit_water, projected_loss,
-                                    projected_residuals, renumbered_groups, water_values,
+                                    projected_residuals, renumbered_groups, water_start,
                                     water_vector)
 from seathru.nerf.water_interval import interval_halfwidth
 
@@ -152,7 +152,7 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     ranges, observed = ranges.double(), observed.double()
     theta = water_vector(fit)
     statistical = cluster_variances(theta, ranges, observed, ids, groups, fit.weights)
-    start = water_values(fit)
+    start = water_start(fit)
     balance = fit.weights is not None
 
     def refit(keep: Tensor) -> tuple[Tensor, Tensor] | None:
