@@ -663,6 +663,13 @@ def test_brighter_near_open_water_warns_with_the_slope_beside_it():
     assert ("of that change the restored render 95% and the restored photographs 88% removed"
             in warning["message"])
     assert warning["details"]["removed_beside"] == {"restored": 0.948, "photographs": 0.881}
+    assert "restored images keep it" in warning["message"]
+    summary.medium_selection = {"glare_correction": {"coefficient": -0.296, "near": 0.07,
+                                                     "reference": 0.22, "far": 0.48}}
+    [warning] = evaluation_warnings(summary)
+    assert "divided by a brightening of -0.30 log colour" in warning["message"]
+    assert "keep it" not in warning["message"]
+    assert warning["details"]["glare_correction"]["coefficient"] == -0.296
     for coefficient, stderr in (([-0.005, 0.001, -0.001], [0.003] * 3),      # the demo
                                 ([-0.3, -0.3, -0.3], [0.2] * 3),              # not measured
                                 ([-0.3, 0.0, 0.0], [0.01] * 3)):              # one channel

@@ -40,6 +40,7 @@ import pandas as pd
 
 from seathru.eval.summary import EvaluationSummary
 from seathru.eval.truth import WATER_KEYS
+from seathru.radiometry.glare import brighter_near_open_water
 
 ERROR_LINE = re.compile(r"seathru (?P<step>[\w-]+): error: (?P<message>.*)")
 STOPPED_BY_LINE = re.compile(r"\(stopped by (?P<cause>\w+)[;)]")
@@ -434,13 +435,6 @@ def _finite(value) -> float | None:
     return float(number) if number is not None and np.isfinite(number) else None
 
 
-#: ``brighter_near_open_water``: the input's log colour falls by more than this per unit of
-#: log distance to the open water in the image, at least this many standard errors from 0, in
-#: two channels or more (d3_reef: 0.28-0.33 at 23-32 standard errors; the demo: within 0.005).
-GLARE_COEFFICIENT = 0.1
-GLARE_T = 5.0
-
-
 def evaluation_warnings(summary: EvaluationSummary | None) -> list[dict]:
     """``brighter_near_open_water`` where the evaluation found the same surfaces brighter in
     the frames that show them next to the open water (``track_colour_slope``'s
@@ -458,9 +452,7 @@ def evaluation_warnings(summary: EvaluationSummary | None) -> list[dict]:
         return []
     coefficients = [_finite(v) for v in beside.get("coefficient") or []]
     errors = [_finite(v) for v in beside.get("coefficient_stderr") or []]
-    bright = [c is not None and e is not None and e > 0 and c < -GLARE_COEFFICIENT
-              and c / e < -GLARE_T for c, e in zip(coefficients, errors)]
-    if sum(bright) < 2:
+    if not brighter_near_open_water(coefficients, errors):
         return []
     darker = ", ".join(f"{100 * (1 - 2 ** c):.0f}%" if c is not None else "?"
                        for c in coefficients)
@@ -471,18 +463,26 @@ def evaluation_warnings(summary: EvaluationSummary | None) -> list[dict]:
                if (share := _finite((beside.get(key) or {}).get("reduction_overall")))
                is not None]
     of_that = f"; of that change {' and '.join(removed)} removed" if removed else ""
+    applied = (summary.medium_selection or {}).get("glare_correction")
+    kept = (f"the model was trained on the photographs divided by a brightening of "
+            f"{applied.get('coefficient', float('nan')):+.2f} log colour per unit of log "
+            f"distance (train.glare auto), and the restored images are measured against the "
+            f"photographs as they are, so the track slope (track_slope_reduction) still holds "
+            f"what the correction did not take out" if isinstance(applied, dict) else
+            "the restored images keep it, and the track slope (track_slope_reduction) "
+            "measures it as well as the water")
     message = (f"the photographs are brighter next to the open water in the frame: the same "
                f"surface is {darker} (R, G, B) darker each time its distance to the open water "
                f"in the image doubles. With that taken into account the colour changes with "
                f"range by {beside_slope} per unit along the COLMAP tracks, against {alone} "
                f"without{of_that}. Veiling glare in the housing's port or a camera's local "
-               f"tone mapping do this, the water does not: the restored images keep it, and the "
-               f"track slope (track_slope_reduction) measures it as well as the water.")
+               f"tone mapping do this, the water does not: {kept}.")
     return [{"step": "evaluate", "code": "brighter_near_open_water", "message": message,
              "details": {"coefficient": coefficients, "coefficient_stderr": errors,
                          "slope_beside": beside.get("slope"),
                          "removed_beside": {key: (beside.get(key) or {}).get("reduction_overall")
-                                            for key in ("restored", "photographs")}}}]
+                                            for key in ("restored", "photographs")},
+                         "glare_correction": applied}}]
 
 
 def _slope_part(slope: dict | None, key: str) -> dict | None:

@@ -3,7 +3,8 @@
 A ``torch.save``d dict, loadable with ``torch.load(weights_only=True)`` (plain tensors, numbers,
 strings, lists and dicts only): ``format`` (``seathru.nerf.model.MODEL_FORMAT``), ``config``,
 ``state_dict`` and ``scene`` (see :meth:`seathru.nerf.model.SeaThruModel.export`), plus what the
-train step records (``training``). Training checkpoints (``config``, ``model``, ``scene``, ...)
+train step records (``training``; ``glare``: the ``seathru.radiometry.glare.GlareCorrection``
+it trained with, as a dict, or None). Training checkpoints (``config``, ``model``, ``scene``, ...)
 load too.
 """
 
@@ -66,7 +67,8 @@ def load_model(path: str | os.PathLike, device: torch.device | str = "cpu"):
 def read_training_record(path: str | os.PathLike) -> dict | None:
     """What the train step recorded of a run in ``model.pt``, without building the model: its
     ``training`` record (``steps``, ``elapsed_s``, ``stopped_by``, ...) and, from its config,
-    ``batch_rays`` and ``preset`` (keys absent where the file lacks them: older models).
+    ``batch_rays`` and ``preset``, and the ``glare`` correction the photographs were trained
+    with (keys absent where the file lacks them: older models, no correction).
 
     The weights are memory-mapped, not read: the report calls this for every run.
 
@@ -94,4 +96,7 @@ def read_training_record(path: str | os.PathLike) -> dict | None:
     record = dict(training) if isinstance(training, dict) else {}
     record.update({key: checkpoint["config"][key] for key in ("batch_rays", "preset")
                    if key in checkpoint["config"]})
+    if isinstance(checkpoint.get("glare"), dict):
+        record["glare"] = dict(checkpoint["glare"])
     return record
+

@@ -34,7 +34,7 @@ from seathru.errors import PipelineError
 from seathru.io.atomic import write_json
 from seathru.io.cameras import CameraSet
 from seathru.io.contract import check_contract
-from seathru.io.images import read_image, write_8bit, write_float_tiff
+from seathru.io.images import read_image, read_mask, write_8bit, write_float_tiff
 from seathru.io.jsonfile import read_json
 
 if TYPE_CHECKING:
@@ -114,11 +114,56 @@ def exposure_references(cameras: CameraSet, max_images: int = MAX_EXPOSURE_IMAGE
             log.warning("exposure: skipping %s (%s)", frames[index].name, exc)
 
 
-def read_view_image(cameras: CameraSet, frame) -> np.ndarray | None:
-    """The camera file's image of ``frame`` (the ground truth of a held-out view); None, with a
-    warning, when it cannot be read."""
+def photograph_glare(model_path: str | os.PathLike):
+    """The ``seathru.radiometry.glare.GlareCorrection`` the model of ``model_path``
+    (``model.pt``) was trained with (its photographs divided by it), or None: none applied,
+    or no model file."""
+    from seathru.io.model import read_training_record
+    from seathru.radiometry.glare import GlareCorrection
+
+    glare = (read_training_record(model_path) or {}).get("glare")
+    return None if glare is None else GlareCorrection.from_dict(glare)
+
+
+def split_glare(photograph: np.ndarray | None, images: Mapping[str, np.ndarray], glare
+                ) -> tuple[np.ndarray | None, dict[str, np.ndarray]]:
+    """A held-out view's photograph without the ``glare`` correction the model was trained
+    with (what its restored photograph starts from), and the model's renders of the view with
+    it put back into the image formation (``rgb``, ``direct``, ``backscatter``: what the camera
+    records, compared with the photograph as it is); both as given without ``glare`` or
+    ``photograph``.
+
+    Args:
+        photograph: (H, W, 3) linear, at the renders' size, or None.
+        images: the inference dict of the view (``seathru.nerf.inference.render_frame``).
+        glare: a ``seathru.radiometry.glare.GlareCorrection`` or None.
+    """
+    from seathru.radiometry.glare import glare_gain, open_water_distance
+    from seathru.radiometry.open_water import open_water_mask
+
+    if glare is None or photograph is None:
+        return photograph, dict(images)
+    photograph = np.asarray(photograph, dtype=np.float64)[..., :3]
+    gain = glare_gain(open_water_distance(open_water_mask(np.nan_to_num(photograph))), glare)
+    recorded = {key: (value * gain[..., None] if key in ("rgb", "direct", "backscatter")
+                      else value) for key, value in images.items()}
+    return photograph / gain[..., None], recorded
+
+
+def read_view_image(cameras: CameraSet, frame, glare=None) -> np.ndarray | None:
+    """The camera file's image of ``frame`` (the ground truth of a held-out view), without the
+    ``glare`` correction the model was trained with (``seathru.io.training.without_glare``);
+    None, with a warning, when it cannot be read."""
+    from seathru.io.training import without_glare
+
     try:
-        return read_image(cameras.image_path(frame))
+        image = read_image(cameras.image_path(frame))
+        if glare is None:
+            return image
+        mask_path = cameras.mask_path(frame)
+        mask = read_mask(mask_path) if mask_path is not None and mask_path.is_file() else None
+        mask = mask[..., 0] if mask is not None and mask.ndim == 3 else mask
+        return without_glare(image[..., :3], mask, glare)
     except PipelineError as exc:
         log.warning("no ground-truth display copy for %s (%s)", frame.name, exc)
         return None
@@ -181,17 +226,18 @@ def write_restored_photo(root: str | os.PathLike, view: str, photograph: np.ndar
 
 def restore_all_photos(render_fn, cameras: CameraSet, root: str | os.PathLike, scale: float,
                        downscale: int, photos: PhotoRestoration,
-                       done: Collection[str] = ()) -> int:
+                       done: Collection[str] = (), glare=None) -> int:
     """Every camera's photograph not in ``done`` (the held-out views, restored as they were
     rendered) restored into ``photos/`` (:func:`write_restored_photo`), one render per view
-    (``render_fn(frame, downscale)``); returns how many were written."""
+    (``render_fn(frame, downscale)``), without the ``glare`` correction the model was trained
+    with (:func:`read_view_image`); returns how many were written."""
     from seathru.nerf.inference import timed_renders
     from seathru.radiometry.linearise import resize_area
 
     frames = sorted((f for f in cameras.frames if f.name not in done), key=lambda f: f.name)
     written = 0
     for frame, images, seconds in timed_renders(render_fn, frames, downscale):
-        photograph = read_view_image(cameras, frame)
+        photograph = read_view_image(cameras, frame, glare)
         if photograph is None:
             continue
         height, width = images["depth"].shape[:2]

@@ -446,16 +446,22 @@ def _fmt(values) -> str:
     return " ".join(f"{v:.3g}" for v in values)
 
 
-def input_colour_change(cameras: CameraSet, max_points: int = 5000) -> dict | None:
+def input_colour_change(cameras: CameraSet, max_points: int = 5000,
+                        near_open_water: bool = False) -> dict | None:
     """How the input colour of the training views changes with range along COLMAP tracks
     (each observation's colour the mean over its window, :func:`window_samples`): evidence of
     water for the medium decision that does not depend on the model.
 
+    With ``near_open_water``, also how it changes with the distance to the open water in the
+    image, fitted beside range (``seathru.radiometry.glare``; the fit a
+    ``GlareCorrection`` is made from: :func:`glare_correction`).
+
     Returns:
         ``{"tracks", "observations", "median_range", "slope", "stderr", "t",
         "change_over_median_range"}`` (per channel, log colour; the change is
-        ``slope * median range``), or None without a COLMAP model beside the camera file or
-        with fewer than :data:`MIN_TRACKS` tracks.
+        ``slope * median range``), with ``near_open_water`` (:func:`_glare_fit`) where asked
+        for and the frames show open water; None without a COLMAP model beside the camera
+        file or with fewer than :data:`MIN_TRACKS` tracks.
     """
     from seathru.eval.track_slope import track_slope
 
@@ -468,16 +474,65 @@ def input_colour_change(cameras: CameraSet, max_points: int = 5000) -> dict | No
         log.warning("no track evidence: %s", exc)
         return None
     train = ~obs.held_out
-    fit = track_slope(obs.track_ids[train], obs.ranges[train],
-                      track_windows(cameras, obs).observed[train])
+    windows = track_windows(cameras, obs, open_water=near_open_water)
+    fit = track_slope(obs.track_ids[train], obs.ranges[train], windows.observed[train])
     if fit.tracks < MIN_TRACKS:
         return None
     median = float(np.median(obs.ranges[train]))
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(fit.stderr > 0, fit.slope / fit.stderr, 0.0)
-    return {"tracks": int(fit.tracks), "observations": int(fit.observations),
-            "median_range": median, "slope": fit.slope.tolist(), "stderr": fit.stderr.tolist(),
-            "t": t.tolist(), "change_over_median_range": (fit.slope * median).tolist()}
+    result = {"tracks": int(fit.tracks), "observations": int(fit.observations),
+              "median_range": median, "slope": fit.slope.tolist(),
+              "stderr": fit.stderr.tolist(), "t": t.tolist(),
+              "change_over_median_range": (fit.slope * median).tolist()}
+    glare = _glare_fit(cameras, obs, windows, train) if near_open_water else None
+    if glare is not None:
+        result["near_open_water"] = glare
+    return result
+
+
+def _glare_fit(cameras: CameraSet, obs: TrackObservations, windows: TrackWindows,
+               use: np.ndarray) -> dict | None:
+    """The observations ``use`` (N,) fitted within tracks on range and the log of their
+    distance to the open water in the image (share of the width), clipped to its 5-95th
+    percentile (``seathru.eval.track_slope.slope_beside``); observations in frames without
+    open water count at the far end. None where no frame shows open water."""
+    from seathru.eval.track_slope import slope_beside
+    from seathru.radiometry.glare import brighter_near_open_water
+
+    pixels = windows.open_water_distance
+    if pixels is None or not np.isfinite(pixels[use]).any():
+        return None
+    widths = np.array([f.width for f in cameras.frames], np.float64)[obs.frames]
+    share = (pixels / widths)[use]
+    near, reference, far = np.percentile(share[np.isfinite(share)], [5, 50, 95])
+    if not 0 < near < far:
+        return None
+    term = np.log(np.clip(np.where(np.isfinite(share), share, far), near, far))
+    fit = slope_beside(obs.track_ids[use], obs.ranges[use], windows.observed[use], term)
+    if fit is None:
+        return None
+    return {"term": "log of the distance to the nearest open water in the image (share of "
+                    "the width), clipped to its 5-95th percentile",
+            "slope": fit.slope.tolist(), "stderr": fit.stderr.tolist(),
+            "coefficient": fit.coefficient.tolist(),
+            "coefficient_stderr": fit.coefficient_stderr.tolist(),
+            "observations": fit.observations, "near": float(near),
+            "reference": float(reference), "far": float(far),
+            "brighter": brighter_near_open_water(fit.coefficient, fit.coefficient_stderr)}
+
+
+def glare_correction(track_change: dict | None):
+    """The ``seathru.radiometry.glare.GlareCorrection`` of :func:`input_colour_change`'s
+    ``near_open_water`` fit where it finds the photographs brighter next to the open water
+    (its ``brighter``), with the channels' mean coefficient; else None."""
+    from seathru.radiometry.glare import GlareCorrection
+
+    fit = (track_change or {}).get("near_open_water")
+    if not fit or not fit.get("brighter"):
+        return None
+    return GlareCorrection(float(np.mean(fit["coefficient"])), fit["near"], fit["reference"],
+                           fit["far"])
 
 
 def training_depth_observations(cameras: CameraSet, max_points: int = 20000,

@@ -11,9 +11,11 @@ from __future__ import annotations
 import csv
 import io
 import json
+import logging
 import math
 import os
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,14 +25,18 @@ from seathru.io.atomic import atomic_path, write_text
 from seathru.io.cameras import CameraSet
 from seathru.io.images import read_image, read_mask
 
+log = logging.getLogger(__name__)
+
 LOG_COLUMNS = ("step", "wall_time_s", "loss", "train_psnr", "test_psnr")
 CHECKPOINT_NAME = "checkpoint.pt"
 
 
-def read_frame_images(cameras: CameraSet, frames) -> tuple[list[np.ndarray],
-                                                            list[np.ndarray | None]]:
+def read_frame_images(cameras: CameraSet, frames, glare=None
+                      ) -> tuple[list[np.ndarray], list[np.ndarray | None]]:
     """Linear RGB images (H, W, 3) and validity masks (H, W) or None of ``frames``, checked
-    against the camera file's sizes."""
+    against the camera file's sizes; with ``glare`` (a
+    ``seathru.radiometry.glare.GlareCorrection``), each image without it
+    (:func:`without_glare`)."""
     images, masks = [], []
     for frame in frames:
         path = cameras.image_path(frame)
@@ -50,9 +56,51 @@ def read_frame_images(cameras: CameraSet, frames) -> tuple[list[np.ndarray],
             if mask.shape != image.shape[:2]:
                 raise PipelineError(f"{mask_path}: mask is {mask.shape[1]}x{mask.shape[0]}, its "
                                     f"image {image.shape[1]}x{image.shape[0]}")
-        images.append(image)
+        images.append(image if glare is None else without_glare(image, mask, glare))
         masks.append(mask)
     return images, masks
+
+
+@dataclass
+class TrainingInputs:
+    """What the train step reads before training (:func:`read_training_inputs`)."""
+
+    train_images: list[np.ndarray]
+    train_masks: list[np.ndarray | None]
+    test_images: list[np.ndarray]
+    test_masks: list[np.ndarray | None]
+    track_change: dict | None     # seathru.io.tracks.input_colour_change
+    glare: object | None          # seathru.radiometry.glare.GlareCorrection applied, or None
+
+
+def read_training_inputs(cameras: CameraSet, train_frames, test_frames,
+                         glare: str = "auto") -> TrainingInputs:
+    """The frames' images and masks, the track evidence of water and, with ``glare`` auto,
+    the glare correction it supports, applied to every image (``TrainConfig.glare``)."""
+    from seathru.io.tracks import glare_correction, input_colour_change
+
+    track_change = input_colour_change(cameras, near_open_water=glare == "auto")
+    correction = glare_correction(track_change)
+    if correction is not None:
+        log.info("the photographs are brighter next to the open water (%+.2f log colour per "
+                 "unit of log distance); training on them without it", correction.coefficient)
+    return TrainingInputs(*read_frame_images(cameras, train_frames, correction),
+                          *read_frame_images(cameras, test_frames, correction), track_change,
+                          correction)
+
+
+def without_glare(image: np.ndarray, mask: np.ndarray | None, glare) -> np.ndarray:
+    """``image`` (H, W, 3) divided by the ``glare`` correction's gain around the open water it
+    shows (``seathru.radiometry.open_water.open_water_mask`` on its valid pixels: ``mask``
+    (H, W) or None, and finite values), in the image's own dtype."""
+    from seathru.radiometry.glare import remove_glare
+    from seathru.radiometry.open_water import open_water_mask
+
+    valid = np.isfinite(image).all(-1)
+    if mask is not None:
+        valid &= mask > 0
+    water = open_water_mask(np.nan_to_num(image), valid=valid)
+    return remove_glare(image, water, glare).astype(image.dtype, copy=False)
 
 
 def write_log_csv(path: Path, rows: list[dict]) -> None:

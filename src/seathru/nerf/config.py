@@ -293,6 +293,12 @@ class TrainConfig:
     medium: MediumConfig = section(MediumConfig)
     loss: LossConfig = section(LossConfig)
     optim: OptimConfig = section(OptimConfig)
+    glare: Literal["auto", "off"] = setting(
+        "auto", help="auto: where the same surfaces are brighter in the photographs that show "
+                     "them next to the open water (fitted along COLMAP tracks beside range; "
+                     "veiling glare in the port or local tone mapping, not the water), train "
+                     "on the photographs divided by that brightening "
+                     "(seathru.radiometry.glare); off: the photographs as they are")
     steps: int = setting(0, help="maximum optimisation steps; 0: no step limit under a time "
                                  "budget (max_minutes decides), 6000 without one")
     passes: float = setting(0.0, help="training budget as passes over the training pixels: "

@@ -95,17 +95,20 @@ def run(args: argparse.Namespace) -> None:
 
     device = select_device(cfg.device, args.threads)
     model = load_model(args.model, device)
+    glare = renders.photograph_glare(args.model)
     render_dataset(frame_renderer(model, cfg.chunk), cameras, args.out, cfg,
-                   {"model": str(args.model), "device": str(device)})
+                   {"model": str(args.model), "device": str(device),
+                    "glare": None if glare is None else glare.to_dict()}, glare=glare)
 
 
 def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Mapping,
-                   record: Mapping | None = None) -> renders.RenderStats:
+                   record: Mapping | None = None, glare=None) -> renders.RenderStats:
     """Render the test views and the camera path of ``cameras`` into ``out``; returns the stats.
 
     ``render_fn(frame, downscale)`` returns ``seathru.nerf.inference.render_frame``'s dict;
     ``cfg`` is the render :class:`Settings` (or a mapping of them); ``record`` is added to the
-    stats' settings (model file, device).
+    stats' settings (model file, device); ``glare``: the model's training correction, out of the
+    photographs it restores and back in the held-out full renders (``renders.split_glare``).
     """
     from seathru.nerf.inference import timed_renders
 
@@ -123,15 +126,17 @@ def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Map
                 scale = display.exposure_scale([images["rgb"]], percentile, target)
                 exposure_source = f"render of {frame.name}"
             height, width = images["depth"].shape[:2]
-            shown = {name: display.to_display(images[key], scale)
-                     for name, key in renders.RENDER_KEYS.items()}
             truth = renders.read_view_image(cameras, frame)
+            truth = None if truth is None else resize_area(truth, (width, height))
+            photograph, recorded = renders.split_glare(truth, images, glare)
+            shown = {name: display.to_display(recorded[key], scale)
+                     for name, key in renders.RENDER_KEYS.items()}
             if truth is not None:
-                truth = resize_area(truth, (width, height))
                 shown["gt"] = display.to_display(truth, scale)
-            renders.write_test_view(tmp, frame.name, images, shown)
+            renders.write_test_view(tmp, frame.name, recorded, shown)
             if truth is not None and cfg.photos.restore != "none":
-                renders.write_restored_photo(tmp, frame.name, truth, images, scale, cfg.photos)
+                renders.write_restored_photo(tmp, frame.name, photograph, images, scale,
+                                             cfg.photos)
             depth_samples.append(display.sample_values(images["depth"], 20_000))
             test_stats.append(renders.frame_record(frame.name, "test", seconds, images))
             log.info("rendered %s (%dx%d) in %.2f s", frame.name, width, height, seconds)
@@ -145,7 +150,7 @@ def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Map
             renders.write_display(tmp, frame.name, "depth", colour(depth))
         if cfg.photos.restore == "all":
             renders.restore_all_photos(render_fn, cameras, tmp, scale, cfg.downscale, cfg.photos,
-                                       done={f.name for f in test_frames})
+                                       done={f.name for f in test_frames}, glare=glare)
         path_stats, videos = [], {}
         if cfg.path_frames > 0:
             with renders.PathVideos(tmp / "path", cfg.fps) as writer:

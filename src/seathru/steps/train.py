@@ -58,9 +58,9 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     import torch
 
     from seathru.io.model import save_model
-    from seathru.io.tracks import input_colour_change, training_depth_observations
-    from seathru.io.training import (CHECKPOINT_NAME, load_checkpoint, read_frame_images,
-                                     read_snapshots, save_checkpoint, write_log_csv,
+    from seathru.io.tracks import training_depth_observations
+    from seathru.io.training import (CHECKPOINT_NAME, load_checkpoint, read_snapshots,
+                                     read_training_inputs, save_checkpoint, write_log_csv,
                                      write_snapshots)
     from seathru.io.warnings import step_warning, write_warnings
     from seathru.io.water import WaterReport, write_water
@@ -78,14 +78,13 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     if not test_frames:
         log.warning("%s: no test frames; the log has no held-out PSNR", cameras_path)
     started = time.perf_counter()
-    test_images, test_masks = read_frame_images(cameras, test_frames)
-    snapshots = QualitySnapshots.from_full_images(test_frames, test_images,
+    inputs = read_training_inputs(cameras, train_frames, test_frames, config.glare)
+    snapshots = QualitySnapshots.from_full_images(test_frames, inputs.test_images,
                                                   config.quality_snapshot_downscale)
     try:
-        prepared = prepare_run(config, cameras, train_frames,
-                               *read_frame_images(cameras, train_frames), test_frames,
-                               test_images, test_masks, device=device,
-                               track_change=input_colour_change(cameras),
+        prepared = prepare_run(config, cameras, train_frames, inputs.train_images,
+                               inputs.train_masks, test_frames, inputs.test_images,
+                               inputs.test_masks, device=device, track_change=inputs.track_change,
                                sparse_points=training_depth_observations(cameras)
                                if config.loss.sparse_depth_weight > 0 else None)
     except PipelineError as exc:
@@ -131,13 +130,11 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    export = model.export()
-    export["training"] = {"steps": result.steps, "elapsed_s": result.elapsed_s,
-                          "stopped_by": result.stopped_by, "rollbacks": result.rollbacks,
-                          "final_test_psnr": result.final_test_psnr,
-                          "steps_per_s": result.train_step_rate,
-                          "rays_per_s": result.rays_per_second, "device": str(device),
-                          "threads": torch.get_num_threads()}
+    export = {**model.export(), "glare": inputs.glare and inputs.glare.to_dict(), "training": {
+        "steps": result.steps, "elapsed_s": result.elapsed_s, "stopped_by": result.stopped_by,
+        "rollbacks": result.rollbacks, "final_test_psnr": result.final_test_psnr,
+        "steps_per_s": result.train_step_rate, "rays_per_s": result.rays_per_second,
+        "device": str(device), "threads": torch.get_num_threads()}}
     save_model(out / "model.pt", export)
     directions = data.fixed_subset(8192, config.seed + 4).directions
     trained_water = model.water_parameters(directions)
@@ -154,6 +151,7 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     write_json(out / "selection.json", {**result.selection, "final_mode": model.medium.mode,
                                          "water_refits": trainer.water_refits,
                                          "view_dependent_colour": trainer.view_selection,
+                                         "glare_correction": export["glare"],
                                          "capacity": prepared.capacity})
     test_text = "n/a" if result.final_test_psnr is None else f"{result.final_test_psnr:.2f} dB"
     log.info("trained %d steps in %.0f s (stopped by %s; %.1f steps/s, %.0f rays/s); held-out "
