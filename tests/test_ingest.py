@@ -4,6 +4,7 @@ balance, clipping masks, bad-input handling, and a round trip through the simula
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 from pathlib import Path
@@ -186,17 +187,17 @@ def test_each_bad_raw_file_is_rejected_with_a_reason(shared_data):
 def test_mixed_dataset_keeps_good_files_and_names_each_reject(shared_data, tmp_path):
     bad = bad_raw_files(shared_data)
     folder = link_files(tmp_path / "dive", {
-        "canon550d_colorchart.dng": shared_data / DNG, "kodak_dc50.kdc": shared_data / KDC,
-        "kodak_dc50.DNG": shared_data / DNG,  # same stem as the KDC: rejected as a duplicate
+        "canon.dng": shared_data / DNG, "kodak_dc50.kdc": shared_data / KDC,
+        "kodak_dc50.DNG": shared_data / DNG,  # the same file as the first: rejected as a copy
         "notes.txt": shared_data / "README.md", **bad})
     manifest = run_ingest("--input", folder, "--out", tmp_path / "out", "--half-size",
                           "--min-images", 2, "--downscale", 2, "--workers", 2)
     out = tmp_path / "out"
-    assert [im["name"] for im in manifest["images"]] == ["canon550d_colorchart", "kodak_dc50"]
+    assert [im["name"] for im in manifest["images"]] == ["canon", "kodak_dc50"]
     assert manifest["input"]["kind"] == "raw" and manifest["input"]["ignored"] == ["notes.txt"]
     rejected = {r["file"]: r["reason"] for r in manifest["rejected"]}
-    assert set(rejected) == set(bad) | {"kodak_dc50.kdc"}
-    assert "duplicate" in rejected["kodak_dc50.kdc"]  # sorted order: .DNG is taken first
+    assert set(rejected) == set(bad) | {"kodak_dc50.DNG"}
+    assert "copy of canon.dng" in rejected["kodak_dc50.DNG"]   # the shorter name is kept
     assert all(len(reason) > 20 for reason in rejected.values())
     for image in manifest["images"]:
         linear = tifffile.imread(out / image["linear"])
@@ -400,7 +401,7 @@ def test_file_selection_kinds_duplicates_and_hints(tmp_path):
     folder = tmp_path / "mixed"
     folder.mkdir()
     for name in ("IMG_1.dng", "IMG_2.nef"):
-        (folder / name).write_bytes(b"raw")  # selection looks at names only
+        (folder / name).write_bytes(name.encode())  # selection looks at names only
     cv2.imwrite(str(folder / "IMG_1.jpg"), np.zeros((4, 4, 3), np.uint8))
     (folder / "IMG_1.xmp").write_text("sidecar")
     selected, rejected, detection = select_files(folder, "auto")
@@ -556,10 +557,16 @@ def _ramp(size=(12, 8), value=100) -> np.ndarray:
     return np.repeat(ramp[..., None], 3, axis=2).astype(np.uint8)
 
 
+_WRITTEN = itertools.count()
+
+
 def _pngs(folder: Path, names, size=(12, 8), value=100) -> None:
+    """:func:`_ramp` images, each file distinct in its last pixel (ingest rejects copies)."""
     folder.mkdir(parents=True, exist_ok=True)
     for name in names:
-        cv2.imwrite(str(folder / name), _ramp(size, value))
+        image = _ramp(size, value)
+        image[-1, -1] = next(_WRITTEN) % 256
+        cv2.imwrite(str(folder / name), image)
 
 
 def _poses_bounds(folder: Path, rows: int) -> None:
@@ -757,6 +764,29 @@ def test_colmap_layout_of_the_release_finds_images_wb_under_other_extensions(tmp
                                                      ("IMG_2.png", "IMG_2")]
 
 
+def test_a_byte_for_byte_copy_of_a_photograph_is_rejected_naming_the_one_kept(tmp_path):
+    """The same photograph under a second name (copied twice off the card) is left out with a
+    reason; identical pixels in another file format are not a copy of the file."""
+    import shutil
+
+    folder = tmp_path / "dive"
+    _pngs(folder, ["IMG_1.png", "IMG_2.png", "IMG_3.png"])
+    shutil.copy(folder / "IMG_2.png", folder / "IMG_2 (1).png")
+    shutil.copy(folder / "IMG_3.png", folder / "zz_copy.png")
+    manifest = run_ingest("--input", folder, "--out", tmp_path / "out", "--workers", 1)
+    assert [image["name"] for image in manifest["images"]] == ["IMG_1", "IMG_2", "IMG_3"]
+    rejected = {r["file"]: r["reason"] for r in manifest["rejected"]}
+    assert set(rejected) == {"IMG_2 (1).png", "zz_copy.png"}
+    assert "byte-for-byte copy of IMG_2.png" in rejected["IMG_2 (1).png"]
+    assert "byte-for-byte copy of IMG_3.png" in rejected["zz_copy.png"]
+    warnings = json.loads((tmp_path / "out" / "warnings.json").read_text())["warnings"]
+    assert any("zz_copy.png" in w["message"] for w in warnings)
+    cv2.imwrite(str(folder / "IMG_1.tif"), cv2.imread(str(folder / "IMG_1.png")))
+    selected, rejected, _ = select_paths([(folder / "IMG_1.png", "a"),
+                                          (folder / "IMG_1.tif", "b")], "auto")
+    assert len(selected) == 2 and not rejected
+
+
 def test_ingest_of_the_release_layout_reads_images_wb_as_linear(tmp_path):
     root = tmp_path / "release"
     _pngs(root / "images_wb", ["a.png", "b.png", "c.png"], value=128)
@@ -766,7 +796,7 @@ def test_ingest_of_the_release_layout_reads_images_wb_as_linear(tmp_path):
     assert manifest["input"]["kind"] == "linear" and manifest["settings"]["kind"] == "auto"
     assert manifest["input"]["layout"]["images"] == "images_wb"
     linear = tifffile.imread(tmp_path / "out" / manifest["images"][0]["linear"])
-    np.testing.assert_allclose(linear, _ramp(value=128) / 255, rtol=1e-6)   # no inverse sRGB
+    np.testing.assert_allclose(linear[:-1], _ramp(value=128)[:-1] / 255, rtol=1e-6)  # no sRGB
     srgb = run_ingest("--input", root, "--layout", "llff", "--out", tmp_path / "srgb",
                       "--workers", 1, "--wb", "none", "--no-exposure-normalise", "--kind", "srgb")
     assert srgb["input"]["kind"] == "srgb"   # an explicit kind wins

@@ -11,6 +11,7 @@ images a posed dataset holds in its own layout (``seathru.io.dataset_readers.lay
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypedDict
@@ -124,7 +125,9 @@ def select_paths(files: list[tuple[Path, str]], kind: str
     """Images to decode as ``(path, name, kind)``, rejected files and what was detected.
 
     ``files``: ``(path, name)`` in the order names are given priority (a duplicate name, e.g.
-    IMG_1.dng and IMG_1.DNG, rejects the later file). The detection dict holds ``kind``,
+    IMG_1.dng and IMG_1.DNG, rejects the later file, and so does a byte-for-byte copy of a
+    file already taken: one photograph twice is two cameras at one place, which COLMAP cannot
+    pose). The detection dict holds ``kind``,
     ``requested``, ``counts``, ``note`` and ``ignored`` (files that are not images).
 
     Raises:
@@ -154,12 +157,11 @@ def select_paths(files: list[tuple[Path, str]], kind: str
     selected: list[tuple[Path, str, str]] = []
     rejected: list[RejectedFile] = []
     taken: dict[str, str] = {}
+    usable_paths = [path for path, _, detected in candidates
+                    if _usable(detected, dataset_kind, kind)]
+    originals = _originals(usable_paths)
     for path, name, detected in candidates:
-        if kind == "auto" or dataset_kind == "raw":
-            usable = detected == dataset_kind
-        else:  # an explicit linear/srgb kind decides the transfer of any encoded file
-            usable = detected != "raw"
-        if not usable:
+        if not _usable(detected, dataset_kind, kind):
             rejected.append({"file": path.name, "reason": (
                 f"{detected} file ({path.suffix}) in a dataset of kind {dataset_kind}; "
                 f"only {dataset_kind} files are used (pass --kind to choose)")})
@@ -168,11 +170,43 @@ def select_paths(files: list[tuple[Path, str]], kind: str
             rejected.append({"file": path.name, "reason": (
                 f"duplicate image name {name!r}: {taken[name]} already provides it")})
             continue
+        original = originals.get(path, path)
+        if original != path:
+            rejected.append({"file": path.name, "reason": (
+                f"a byte-for-byte copy of {original.name}, which is used; the same "
+                f"photograph twice cannot be posed (remove the copy)")})
+            continue
         taken[name] = path.name
         selected.append((path, name, dataset_kind))
     detection = {"kind": dataset_kind, "requested": kind, "counts": counts, "note": note,
                  "ignored": ignored}
     return selected, rejected, detection
+
+
+def _usable(detected: str, dataset_kind: str, kind: str) -> bool:
+    if kind == "auto" or dataset_kind == "raw":
+        return detected == dataset_kind
+    return detected != "raw"  # an explicit linear/srgb kind decides the transfer of any file
+
+
+def _originals(paths: list[Path]) -> dict[Path, Path]:
+    """Each of ``paths`` whose bytes another one has too -> the one of them kept: the shortest
+    file name, then the first (``IMG_2.png`` before ``IMG_2 (1).png``)."""
+    groups: dict[str, list[Path]] = {}
+    for path in paths:
+        groups.setdefault(file_digest(path), []).append(path)
+    return {path: min(group, key=lambda p: len(p.name))
+            for group in groups.values() if len(group) > 1 for path in group}
+
+
+def file_digest(path: Path) -> str:
+    """SHA-1 of the file's bytes; a file that cannot be read gets its path instead (its
+    decoding then says what is wrong)."""
+    try:
+        with open(path, "rb") as handle:
+            return hashlib.file_digest(handle, "sha1").hexdigest()
+    except OSError:
+        return f"unreadable:{path}"
 
 
 @dataclass
