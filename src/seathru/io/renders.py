@@ -36,6 +36,7 @@ from seathru.io.cameras import CameraSet
 from seathru.io.contract import check_contract
 from seathru.io.images import read_image, read_mask, write_8bit, write_float_tiff
 from seathru.io.jsonfile import read_json
+from seathru.radiometry.glare import GlareCorrection
 
 if TYPE_CHECKING:
     from seathru.radiometry.restore import PhotoRestoration
@@ -114,19 +115,18 @@ def exposure_references(cameras: CameraSet, max_images: int = MAX_EXPOSURE_IMAGE
             log.warning("exposure: skipping %s (%s)", frames[index].name, exc)
 
 
-def photograph_glare(model_path: str | os.PathLike):
+def photograph_glare(model_path: str | os.PathLike) -> GlareCorrection | None:
     """The ``seathru.radiometry.glare.GlareCorrection`` the model of ``model_path``
     (``model.pt``) was trained with (its photographs divided by it), or None: none applied,
     or no model file."""
     from seathru.io.model import read_training_record
-    from seathru.radiometry.glare import GlareCorrection
 
     glare = (read_training_record(model_path) or {}).get("glare")
     return None if glare is None else GlareCorrection.from_dict(glare)
 
 
-def split_glare(photograph: np.ndarray | None, images: Mapping[str, np.ndarray], glare
-                ) -> tuple[np.ndarray | None, dict[str, np.ndarray]]:
+def split_glare(photograph: np.ndarray | None, images: Mapping[str, np.ndarray],
+                glare: GlareCorrection | None) -> tuple[np.ndarray | None, dict[str, np.ndarray]]:
     """A held-out view's photograph without the ``glare`` correction the model was trained
     with (what its restored photograph starts from), and the model's renders of the view with
     it put back into the image formation (``rgb``, ``direct``, ``backscatter``: what the camera
@@ -150,7 +150,8 @@ def split_glare(photograph: np.ndarray | None, images: Mapping[str, np.ndarray],
     return photograph / gain[..., None], recorded
 
 
-def read_view_image(cameras: CameraSet, frame, glare=None) -> np.ndarray | None:
+def read_view_image(cameras: CameraSet, frame, glare: GlareCorrection | None = None
+                    ) -> np.ndarray | None:
     """The camera file's image of ``frame`` (the ground truth of a held-out view), without the
     ``glare`` correction the model was trained with (``seathru.io.training.without_glare``);
     None, with a warning, when it cannot be read."""
@@ -226,7 +227,8 @@ def write_restored_photo(root: str | os.PathLike, view: str, photograph: np.ndar
 
 def restore_all_photos(render_fn, cameras: CameraSet, root: str | os.PathLike, scale: float,
                        downscale: int, photos: PhotoRestoration,
-                       done: Collection[str] = (), glare=None) -> int:
+                       done: Collection[str] = (),
+                       glare: GlareCorrection | None = None) -> int:
     """Every camera's photograph not in ``done`` (the held-out views, restored as they were
     rendered) restored into ``photos/`` (:func:`write_restored_photo`), one render per view
     (``render_fn(frame, downscale)``), without the ``glare`` correction the model was trained

@@ -26,6 +26,7 @@ from seathru.io import renders as renders_io
 from seathru.io.cameras import CameraSet
 from seathru.io.colmap import read_model
 from seathru.io.images import read_image, read_mask
+from seathru.radiometry.glare import GlareCorrection
 
 log = logging.getLogger(__name__)
 #: A track's colour in a view is the mean over a square window this share of the image's width
@@ -522,12 +523,10 @@ def _glare_fit(cameras: CameraSet, obs: TrackObservations, windows: TrackWindows
             "brighter": brighter_near_open_water(fit.coefficient, fit.coefficient_stderr)}
 
 
-def glare_correction(track_change: dict | None):
+def glare_correction(track_change: dict | None) -> GlareCorrection | None:
     """The ``seathru.radiometry.glare.GlareCorrection`` of :func:`input_colour_change`'s
     ``near_open_water`` fit where it finds the photographs brighter next to the open water
     (its ``brighter``), with the channels' mean coefficient; else None."""
-    from seathru.radiometry.glare import GlareCorrection
-
     fit = (track_change or {}).get("near_open_water")
     if not fit or not fit.get("brighter"):
         return None

@@ -24,6 +24,7 @@ from seathru.errors import PipelineError
 from seathru.io.atomic import atomic_path, write_text
 from seathru.io.cameras import CameraSet
 from seathru.io.images import read_image, read_mask
+from seathru.radiometry.glare import GlareCorrection
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +32,7 @@ LOG_COLUMNS = ("step", "wall_time_s", "loss", "train_psnr", "test_psnr")
 CHECKPOINT_NAME = "checkpoint.pt"
 
 
-def read_frame_images(cameras: CameraSet, frames, glare=None
+def read_frame_images(cameras: CameraSet, frames, glare: GlareCorrection | None = None
                       ) -> tuple[list[np.ndarray], list[np.ndarray | None]]:
     """Linear RGB images (H, W, 3) and validity masks (H, W) or None of ``frames``, checked
     against the camera file's sizes; with ``glare`` (a
@@ -70,7 +71,7 @@ class TrainingInputs:
     test_images: list[np.ndarray]
     test_masks: list[np.ndarray | None]
     track_change: dict | None     # seathru.io.tracks.input_colour_change
-    glare: object | None          # seathru.radiometry.glare.GlareCorrection applied, or None
+    glare: GlareCorrection | None  # the correction applied to every image, or None
 
 
 def read_training_inputs(cameras: CameraSet, train_frames, test_frames,
@@ -89,7 +90,8 @@ def read_training_inputs(cameras: CameraSet, train_frames, test_frames,
                           correction)
 
 
-def without_glare(image: np.ndarray, mask: np.ndarray | None, glare) -> np.ndarray:
+def without_glare(image: np.ndarray, mask: np.ndarray | None,
+                  glare: GlareCorrection) -> np.ndarray:
     """``image`` (H, W, 3) divided by the ``glare`` correction's gain around the open water it
     shows (``seathru.radiometry.open_water.open_water_mask`` on its valid pixels: ``mask``
     (H, W) or None, and finite values), in the image's own dtype."""
