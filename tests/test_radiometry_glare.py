@@ -15,7 +15,7 @@ from seathru.io.cameras import CameraSet, Frame
 from seathru.io.images import write_float_tiff
 from seathru.io.training import read_frame_images
 from seathru.radiometry.glare import (GlareCorrection, brighter_near_open_water, glare_gain,
-                                      open_water_distance, remove_glare)
+                                      open_water_distance, photograph_gain)
 from seathru.radiometry.open_water import open_water_mask
 
 CORRECTION = GlareCorrection(coefficient=-0.3, near=0.05, reference=0.2, far=0.5)
@@ -56,14 +56,21 @@ def test_open_water_keeps_its_value_and_a_frame_without_any_counts_as_far():
     assert np.all(np.diff(edge) > 0) and np.max(np.diff(edge)) < 0.05 * edge[-1]
 
 
-def test_removing_the_glare_undoes_the_gain_it_models():
+def test_a_photographs_gain_follows_the_open_water_it_shows_on_its_valid_pixels():
     rng = np.random.default_rng(1)
-    scene = rng.uniform(0.05, 0.8, (30, 40, 3))
-    water = np.zeros((30, 40), bool)
-    water[:6] = True
-    photographed = scene * glare_gain(open_water_distance(water), CORRECTION)[..., None]
-    assert np.allclose(remove_glare(photographed, water, CORRECTION), scene, rtol=1e-12)
-    assert not np.allclose(photographed[6:], scene[6:], rtol=1e-3)
+    photograph = rng.uniform(0.05, 0.8, (32, 40, 3))
+    photograph[:16] = (0.05, 0.3, 0.5)
+    water = open_water_mask(photograph)
+    assert water[:8].all() and not water[16:].any()
+    gain = photograph_gain(photograph, CORRECTION)
+    assert np.allclose(gain, glare_gain(open_water_distance(water), CORRECTION), rtol=1e-12)
+    assert np.all(gain[water] == 1.0) and not np.allclose(gain[16:], 1.0, rtol=1e-3)
+    valid = np.ones((32, 40), bool)
+    valid[:, :16] = False                                  # masked pixels are never water
+    masked = photograph_gain(photograph, CORRECTION, valid)
+    assert np.allclose(masked, glare_gain(open_water_distance(
+        open_water_mask(photograph, valid=valid)), CORRECTION))
+    assert not np.allclose(masked[:8, :16], 1.0)
 
 
 @pytest.mark.parametrize("coefficient, stderr, expected", [

@@ -138,13 +138,12 @@ def split_glare(photograph: np.ndarray | None, images: Mapping[str, np.ndarray],
         images: the inference dict of the view (``seathru.nerf.inference.render_frame``).
         glare: a ``seathru.radiometry.glare.GlareCorrection`` or None.
     """
-    from seathru.radiometry.glare import glare_gain, open_water_distance
-    from seathru.radiometry.open_water import open_water_mask
+    from seathru.radiometry.glare import photograph_gain
 
     if glare is None or photograph is None:
         return photograph, dict(images)
     photograph = np.asarray(photograph, dtype=np.float64)[..., :3]
-    gain = glare_gain(open_water_distance(open_water_mask(np.nan_to_num(photograph))), glare)
+    gain = photograph_gain(photograph, glare, np.isfinite(photograph).all(-1))
     recorded = {key: (value * gain[..., None] if key in ("rgb", "direct", "backscatter")
                       else value) for key, value in images.items()}
     return photograph / gain[..., None], recorded

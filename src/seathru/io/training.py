@@ -93,16 +93,15 @@ def read_training_inputs(cameras: CameraSet, train_frames, test_frames,
 def without_glare(image: np.ndarray, mask: np.ndarray | None,
                   glare: GlareCorrection) -> np.ndarray:
     """``image`` (H, W, 3) divided by the ``glare`` correction's gain around the open water it
-    shows (``seathru.radiometry.open_water.open_water_mask`` on its valid pixels: ``mask``
-    (H, W) or None, and finite values), in the image's own dtype."""
-    from seathru.radiometry.glare import remove_glare
-    from seathru.radiometry.open_water import open_water_mask
+    shows on its valid pixels (``mask`` (H, W) or None, and finite values;
+    ``seathru.radiometry.glare.photograph_gain``), in the image's own dtype."""
+    from seathru.radiometry.glare import photograph_gain
 
     valid = np.isfinite(image).all(-1)
     if mask is not None:
         valid &= mask > 0
-    water = open_water_mask(np.nan_to_num(image), valid=valid)
-    return remove_glare(image, water, glare).astype(image.dtype, copy=False)
+    gain = photograph_gain(image, glare, valid)
+    return (image / gain[..., None]).astype(image.dtype, copy=False)
 
 
 def write_log_csv(path: Path, rows: list[dict]) -> None:

@@ -112,8 +112,21 @@ def glare_gain(distance: np.ndarray, correction: GlareCorrection) -> np.ndarray:
     return gain ** np.clip(distance / correction.near, 0.0, 1.0)
 
 
-def remove_glare(image: np.ndarray, open_water: np.ndarray,
-                 correction: GlareCorrection) -> np.ndarray:
-    """``image`` (H, W, C) divided by :func:`glare_gain` of its ``open_water`` (H, W) mask."""
-    gain = glare_gain(open_water_distance(open_water), correction)
-    return np.asarray(image, dtype=np.float64) / gain[..., None]
+def photograph_gain(image: np.ndarray, correction: GlareCorrection,
+                    valid: np.ndarray | None = None) -> np.ndarray:
+    """:func:`glare_gain` around the open water a photograph shows
+    (``seathru.radiometry.open_water.open_water_mask`` on its ``valid`` pixels).
+
+    Args:
+        image: (H, W, 3) linear photograph (non-finite values count as 0).
+        correction: the fitted correction.
+        valid: (H, W) bool, pixels that may be open water, or None (all).
+
+    Returns:
+        (H, W) gain; the photograph without the brightening is ``image / gain[..., None]``.
+    """
+    from seathru.radiometry.open_water import open_water_mask
+
+    water = open_water_mask(np.nan_to_num(np.asarray(image, dtype=np.float64)[..., :3]),
+                            valid=valid)
+    return glare_gain(open_water_distance(water), correction)
