@@ -99,4 +99,3 @@ def read_training_record(path: str | os.PathLike) -> dict | None:
     if isinstance(checkpoint.get("glare"), dict):
         record["glare"] = dict(checkpoint["glare"])
     return record
-

@@ -34,7 +34,7 @@ from seathru.errors import PipelineError
 from seathru.io.atomic import write_json
 from seathru.io.cameras import CameraSet
 from seathru.io.contract import check_contract
-from seathru.io.images import read_image, read_mask, write_8bit, write_float_tiff
+from seathru.io.images import read_image, write_8bit, write_float_tiff
 from seathru.io.jsonfile import read_json
 from seathru.radiometry.glare import GlareCorrection
 
@@ -152,18 +152,15 @@ def split_glare(photograph: np.ndarray | None, images: Mapping[str, np.ndarray],
 def read_view_image(cameras: CameraSet, frame, glare: GlareCorrection | None = None
                     ) -> np.ndarray | None:
     """The camera file's image of ``frame`` (the ground truth of a held-out view), without the
-    ``glare`` correction the model was trained with (``seathru.io.training.without_glare``);
-    None, with a warning, when it cannot be read."""
-    from seathru.io.training import without_glare
+    ``glare`` correction the model was trained with, read as the train step reads it
+    (``seathru.io.training.read_frame_images``); None, with a warning, when it cannot be read."""
+    from seathru.io.training import read_frame_images
 
     try:
-        image = read_image(cameras.image_path(frame))
         if glare is None:
-            return image
-        mask_path = cameras.mask_path(frame)
-        mask = read_mask(mask_path) if mask_path is not None and mask_path.is_file() else None
-        mask = mask[..., 0] if mask is not None and mask.ndim == 3 else mask
-        return without_glare(image[..., :3], mask, glare)
+            return read_image(cameras.image_path(frame))
+        (image,), _ = read_frame_images(cameras, [frame], glare)
+        return image
     except PipelineError as exc:
         log.warning("no ground-truth display copy for %s (%s)", frame.name, exc)
         return None

@@ -24,7 +24,7 @@ from seathru.errors import PipelineError
 from seathru.io.atomic import atomic_path, write_text
 from seathru.io.cameras import CameraSet
 from seathru.io.images import read_image, read_mask
-from seathru.radiometry.glare import GlareCorrection
+from seathru.radiometry.glare import GlareCorrection, photograph_gain
 
 log = logging.getLogger(__name__)
 
@@ -95,8 +95,6 @@ def without_glare(image: np.ndarray, mask: np.ndarray | None,
     """``image`` (H, W, 3) divided by the ``glare`` correction's gain around the open water it
     shows on its valid pixels (``mask`` (H, W) or None, and finite values;
     ``seathru.radiometry.glare.photograph_gain``), in the image's own dtype."""
-    from seathru.radiometry.glare import photograph_gain
-
     valid = np.isfinite(image).all(-1)
     if mask is not None:
         valid &= mask > 0

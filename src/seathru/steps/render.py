@@ -102,7 +102,8 @@ def run(args: argparse.Namespace) -> None:
 
 
 def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Mapping,
-                   record: Mapping | None = None, glare=None) -> renders.RenderStats:
+                   record: Mapping | None = None,
+                   glare: renders.GlareCorrection | None = None) -> renders.RenderStats:
     """Render the test views and the camera path of ``cameras`` into ``out``; returns the stats.
 
     ``render_fn(frame, downscale)`` returns ``seathru.nerf.inference.render_frame``'s dict;
