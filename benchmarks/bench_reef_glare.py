@@ -40,10 +40,11 @@ def _run(command: list[str], log: Path) -> None:
         raise SystemExit(f"{' '.join(command)} failed: see {log}")
 
 
-def run_arm(poses: Path, work: Path, arm: str, seed: int, minutes: float, threads: int) -> Path:
-    """Train, render and evaluate one arm; returns its folder. A step whose output is there
-    already is not run again (delete ``render/`` and ``eval/`` to measure a trained model
-    again)."""
+def run_arm(poses: Path, work: Path, arm: str, seed: int, minutes: float, threads: int,
+            glare: str | None = None, train_args: tuple[str, ...] = ()) -> Path:
+    """Train (``train.glare`` ``glare``, else ``arm``; ``train_args`` on top), render and
+    evaluate one arm; returns its folder. A step whose output is there already is not run
+    again (delete ``render/`` and ``eval/`` to measure a trained model again)."""
     folder = work / f"{arm}_seed{seed}"
     folder.mkdir(parents=True, exist_ok=True)
     seathru = [sys.executable, "-m", "seathru.cli"]
@@ -52,7 +53,8 @@ def run_arm(poses: Path, work: Path, arm: str, seed: int, minutes: float, thread
         _run(seathru + ["train", "--cameras", cameras, "--out", str(folder / "train"),
                         "--checkpoint-dir", str(folder / "checkpoints"), "--threads",
                         str(threads), "--max-minutes", str(minutes), "--seed", str(seed),
-                        "--glare", arm, "--no-progress"], folder / "train.log")
+                        "--glare", glare or arm, "--no-progress", *train_args],
+             folder / "train.log")
     if not (folder / "render" / "render_stats.json").is_file():
         _run(seathru + ["render", "--model", str(folder / "train" / "model.pt"), "--cameras",
                         cameras, "--out", str(folder / "render"), "--threads", str(threads),

@@ -101,21 +101,27 @@ def final_fit_errors(summary, water_path: Path) -> str:
                             fit["sigma_attn"], trained))
 
 
-ROW_HEADER = ("| run | steps | held-out PSNR (dB) | restored vs clean (dB) | water | "
-              "sigma_attn by the final surfaces |")
+ROW_HEADER = ("| run | steps | held-out PSNR (dB) | restored vs clean (dB) | restored photographs "
+              "vs clean (dB) | water | sigma_attn by the final surfaces |")
 
 
 def table_cells(row: dict) -> str:
-    """``| run | steps | held-out PSNR | restored vs clean | water | final fit |`` of a
-    :func:`read_row`."""
-    restored = "—" if row["restored"] is None else f"{row['restored']:.2f}"
-    return (f"| {row['run']} | {row['steps']} | {row['psnr']:.2f} | {restored} | {row['water']} "
-            f"| {row.get('final_fit', '—')} |")
+    """``| run | steps | held-out PSNR | restored vs clean | restored photographs | water |
+    final fit |`` of a :func:`read_row` (restored figures: all pixels with a surface, and in
+    brackets those two or more training views see)."""
+    def both(key: str) -> str:
+        if row.get(key) is None:
+            return "—"
+        covered = row.get(f"{key}_covered")
+        return f"{row[key]:.2f}" + ("" if covered is None else f" ({covered:.2f})")
+
+    return (f"| {row['run']} | {row['steps']} | {row['psnr']:.2f} | {both('restored')} "
+            f"| {both('photos')} | {row['water']} | {row.get('final_fit', '—')} |")
 
 
 def arm_table(rows: list[tuple[str, dict]]) -> list[str]:
     """A markdown table of ``(arm, read_row(...))`` pairs, one line per run."""
-    return ["| arm " + ROW_HEADER, "|---" * 7 + "|", *(f"| {arm} {table_cells(row)}" for arm, row in rows)]
+    return ["| arm " + ROW_HEADER, "|---" * 8 + "|", *(f"| {arm} {table_cells(row)}" for arm, row in rows)]
 
 
 def read_row(name: str, minutes: float, work: Path) -> dict:
@@ -127,6 +133,9 @@ def read_row(name: str, minutes: float, work: Path) -> dict:
            "training_s": training.time_s if training else None,
            "psnr": summary.means["psnr_linear"],
            "restored": summary.means.get("restored_psnr_linear"),
+           "restored_covered": summary.means.get("restored_psnr_linear_covered"),
+           "photos": summary.means.get("photo_restored_psnr_linear"),
+           "photos_covered": summary.means.get("photo_restored_psnr_linear_covered"),
            "water": water_errors(summary),
            "final_fit": final_fit_errors(summary, work / name / "train" / "water.json")}
     print(row, flush=True)

@@ -66,7 +66,7 @@ def main() -> None:
              f"model undistorted both ways; {args.minutes:g} min of training a run, the arms "
              "interleaved, one run at a time. Water: signed error against the truth, %, "
              "R, G, B.", "",
-             ROW_HEADER, "|---" * 6 + "|"]
+             ROW_HEADER, "|---" * 7 + "|"]
     lines += [table_cells(row) for row in rows]
     args.out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -447,11 +447,22 @@ def test_html_says_why_each_setting_was_chosen_escaped():
             "&lt;measurable&gt;.") in reef
     assert "<b>reef+quality</b>: capacity <code>quality</code> (set by train.preset=quality)" \
         in quality
+    assert "sampled to" not in reef                      # no far factor recorded: nothing said
     summary = page.split('<table class="summary">')[1].split("</table>")[0]
     assert "<th>capacity</th><th>passes</th>" in summary
     assert "<td>auto \u2192 fast</td><td>10</td>" in summary   # 100 x 2048 / 20480
     plain = render_html(summary_table(records[2:]), records[2:], {}, {}, "now")
     assert "Settings chosen" not in plain
+
+
+def test_html_says_how_far_the_object_field_was_sampled():
+    record = _chosen("survey", AUTO_CAPACITY, None)
+    record.selection["far_factor"] = {"requested": "auto", "chosen": 3.0,
+                                      "reason": "22.4% of the pixels are open water <one colour>"}
+    page = render_html(summary_table([record]), [record], {}, {}, "now")
+    chosen = re.findall(r'<p class="chosen">(.*?)</p>', page)[0]
+    assert ("Object field sampled to <code>3</code>&times; the cameras' far bound: 22.4% of "
+            "the pixels are open water &lt;one colour&gt;.") in chosen
 
 
 def test_frontier_labels_each_run_with_its_capacity_level():

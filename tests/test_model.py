@@ -19,7 +19,7 @@ from seathru.nerf.losses import (distortion_loss, reconstruction_loss, sparse_de
 from seathru.nerf.medium import Medium
 from seathru.nerf.config import TrainConfig
 from seathru.settings import SettingsError
-from seathru.nerf.model import SeaThruModel
+from seathru.nerf.model import AUTO_FAR_FACTOR, SeaThruModel, far_bound_choice
 from seathru.nerf.rays import (RayDataset, covisible_box, frame_rays,
                                ray_box_intersect, view_counts)
 from seathru.nerf.rendering import nerf_weights
@@ -421,6 +421,64 @@ def test_the_ray_interval_scales_the_camera_bounds():
 def test_far_factor_below_one_is_refused():
     with pytest.raises(SettingsError, match="far_factor"):
         TrainConfig.from_dict({"sampler": {"far_factor": 0.5}})
+
+
+@pytest.mark.parametrize("medium, share, spread, expected", [
+    ("auto", 0.2, 0.02, AUTO_FAR_FACTOR),   # open water of one colour: far seabed past the bound
+    ("global", 0.2, 0.5, AUTO_FAR_FACTOR),  # global as asked, whatever the spread
+    ("auto", 0.2, 0.3, 1.0),                # starts veiling: the field would fill the open water
+    ("veiling", 0.2, 0.02, 1.0),
+    ("off", 0.2, 0.02, 1.0),                # no water: no veiling light to go by
+    ("auto", 0.01, 0.02, 1.0),              # hardly any open water: the sparse points bound it
+])
+def test_auto_far_factor_follows_the_open_water_and_the_starting_medium(medium, share, spread,
+                                                                        expected):
+    config = TrainConfig.from_dict({**SMALL, "medium": medium, "far_factor": 0.0})
+    scene = {**scene_dict(), "open_water_image_share": share,
+             "open_water_direction_spread": spread}
+    choice = far_bound_choice(config, scene)
+    assert choice["requested"] == "auto" and choice["chosen"] == expected and choice["reason"]
+    model = SeaThruModel(config, scene)
+    near, far = random_rays()[2:]
+    assert torch.equal(model.ray_interval(near, far)[1], expected * far)
+    # a model reloaded from its export samples as far as it was trained to
+    assert SeaThruModel.from_checkpoint(model.export()).far_bound == model.far_bound
+
+
+def test_a_widened_far_bound_leaves_the_near_candidates_as_they_were(monkeypatch):
+    """The candidates are linear up to the box's exit or the camera's far bound, whichever is
+    nearer, with any far factor: past the bound they go linear in 1/t."""
+    import seathru.nerf.model as model_module
+
+    seen = []
+    original = model_module.candidate_edges
+
+    def recording(near, far, t_split, *args):
+        seen.append((far.clone(), t_split.clone()))
+        return original(near, far, t_split, *args)
+
+    monkeypatch.setattr(model_module, "candidate_edges", recording)
+    origins, dirs, near, _ = random_rays()
+    camera_far = torch.full_like(near, 2.0)   # the box's exit lies past it on these rays
+    edges = {}
+    for factor in (1.0, 3.0):
+        model = SeaThruModel(TrainConfig.from_dict({**SMALL, "far_factor": factor}), scene_dict())
+        model.eval()
+        seen.clear()
+        with torch.no_grad():
+            model(origins, dirs, near, camera_far)
+        far, t_split = seen[-1]
+        assert torch.equal(far, factor * camera_far)
+        edges[factor] = original(near, far, t_split, SMALL["candidates_linear"], 0)
+    box_exit = model._split_distance(origins, dirs, near)
+    assert (box_exit > camera_far).any()
+    assert torch.equal(edges[1.0], edges[3.0])   # the linear candidates are the same
+
+
+def test_an_explicit_far_factor_is_kept():
+    config = TrainConfig.from_dict({**SMALL, "far_factor": 1.5, "medium": "veiling"})
+    choice = far_bound_choice(config, {**scene_dict(), "open_water_image_share": 0.0})
+    assert choice == {"requested": 1.5, "chosen": 1.5, "reason": "set (sampler.far_factor)"}
 
 
 def test_upsampling_the_grids_keeps_the_rendering():

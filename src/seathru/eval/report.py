@@ -216,8 +216,9 @@ def settings_notes(records: Sequence[DatasetRecord]) -> list[dict]:
     """Per run with a recorded choice (the page's "Settings chosen"): ``dataset``,
     ``capacity`` (:func:`capacity_level`), ``capacity_reason``, ``kept_explicit`` (settings
     ``auto`` left as they were set), ``medium`` (:func:`medium_name`), ``medium_requested`` and
-    ``medium_reason``, ``view_colour`` (on or off) and ``view_colour_reason``; None where not
-    recorded."""
+    ``medium_reason``, ``view_colour`` (on or off) and ``view_colour_reason``, ``far_factor``
+    (how far the object field was sampled, as a multiple of the cameras' far bound) and
+    ``far_factor_reason``; None where not recorded."""
     notes = []
     for record in records:
         selection, capacity = run_selection(record), _capacity_record(record)
@@ -235,15 +236,19 @@ def settings_notes(records: Sequence[DatasetRecord]) -> list[dict]:
                       "medium": medium_name(selection),
                       "medium_requested": (selection or {}).get("requested"),
                       "medium_reason": (selection or {}).get("reason"),
-                      **_view_colour_note(selection)})
+                      **_choice_note(selection, "view_dependent_colour", "view_colour"),
+                      **_choice_note(selection, "far_factor", "far_factor")})
     return notes
 
 
-def _view_colour_note(selection: dict | None) -> dict:
-    view = (selection or {}).get("view_dependent_colour")
-    if not isinstance(view, dict) or "chosen" not in view:
-        return {"view_colour": None, "view_colour_reason": None}
-    return {"view_colour": str(view["chosen"]), "view_colour_reason": view.get("reason")}
+def _choice_note(selection: dict | None, key: str, name: str) -> dict:
+    """``{name, name_reason}`` of selection.json's ``key`` (``{"chosen", "reason"}``)."""
+    choice = (selection or {}).get(key)
+    if not isinstance(choice, dict) or "chosen" not in choice:
+        return {name: None, f"{name}_reason": None}
+    return {name: f"{choice['chosen']:g}" if isinstance(choice["chosen"], (int, float))
+            and not isinstance(choice["chosen"], bool) else str(choice["chosen"]),
+            f"{name}_reason": choice.get("reason")}
 
 
 def stopped_by(lines: Sequence[str]) -> str | None:

@@ -68,10 +68,11 @@ class SamplerConfig:
     far_factor: float = setting(
         1.0, help="the object field is sampled up to this multiple of each camera's far bound "
                   "(cameras.json: from the sparse points the image sees, and far hazy seabed "
-                  "has few of them; beyond it the water is integrated in closed form). 3 "
-                  "placed the demo's far seabed at its range and restored it 0.6-1.0 dB "
-                  "better, but left 37% instead of 100% of d3_reef's open water empty (its "
-                  "veiling light varies with direction): benchmarks/results/far_factor.md")
+                  "has few of them; beyond it the water is integrated in closed form); 0 = "
+                  "auto: 3 where the photographs show open water whose veiling light is the "
+                  "same in every direction (the water starts global), else 1. 3 on the demo: "
+                  "restored photographs +0.5..+1.0 dB, held-out views -0.6..-0.9 dB "
+                  "(benchmarks/results/far_factor.md)")
     samples_per_ray: int = setting(16, help="object samples per ray (occupancy sampler)")
     candidates_linear: int = setting(64, help="candidate bins linear in the scene box")
     candidates_disparity: int = setting(16, help="candidate bins linear in 1/t beyond the box")
@@ -364,8 +365,9 @@ class TrainConfig:
                             ("batch_rays", self.batch_rays or 1)):
             if value < 1:
                 raise ValueError(f"{name} must be >= 1, got {value}")
-        if s.far_factor < 1:
-            raise ValueError(f"sampler.far_factor must be >= 1, got {s.far_factor}")
+        if s.far_factor != 0 and s.far_factor < 1:
+            raise ValueError(f"sampler.far_factor must be 0 (auto) or >= 1, got "
+                             f"{s.far_factor}")
         if self.optim.lr <= 0:
             raise ValueError(f"optim.lr must be > 0, got {self.optim.lr}")
 

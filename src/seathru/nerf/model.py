@@ -59,6 +59,55 @@ def initial_medium_mode(config: TrainConfig, scene: dict | None = None) -> str:
     return "veiling" if spread > config.medium.auto_veiling_spread else "global"
 
 
+#: ``sampler.far_factor`` auto where the photographs show open water of one colour
+AUTO_FAR_FACTOR = 3.0
+
+
+def far_bound_choice(config: TrainConfig, scene: dict | None = None) -> dict[str, Any]:
+    """How far along each ray the object field is sampled, as a multiple of the camera's far
+    bound: ``sampler.far_factor``, or with 0 (auto) :data:`AUTO_FAR_FACTOR` where the training
+    photographs show open water (``scene["open_water_image_share"]`` above
+    ``medium.auto_open_water_share``) and the water starts ``global``
+    (:func:`initial_medium_mode`), else 1.
+
+    Why: the far bound comes from the sparse points, and the far hazy seabed that recedes into
+    open water has few of them, so the object field puts that seabed in front of the bound and
+    the restoration divides it by too little water. Sampled to 3x the bound, the demo's
+    restored photographs gain 0.5-1.0 dB, but its held-out views lose 0.6-0.9 dB on their near
+    surfaces (benchmarks/results/far_factor.md), so auto is not the default. Where the veiling
+    light changes with direction (``veiling``; d3_reef) the object field beyond the bound
+    fills the open water; without open water in view the bound already holds the scene.
+
+    Returns:
+        ``{"requested", "chosen", "reason"}`` (selection.json's ``far_factor``).
+
+    Example::
+
+        far_bound_choice(config, {"open_water_image_share": 0.22,
+                                  "open_water_direction_spread": 0.045})["chosen"]   # 3.0
+    """
+    requested = float(config.sampler.far_factor)
+    if requested:
+        return {"requested": requested, "chosen": requested, "reason": "set (sampler.far_factor)"}
+    scene = scene or {}
+    share = float(scene.get("open_water_image_share", 0.0))
+    mode = initial_medium_mode(config, scene)
+    if share <= config.medium.auto_open_water_share:
+        chosen, why = 1.0, (f"{100 * share:.1f}% of the training pixels are open water: the "
+                            f"sparse points bound the scene")
+    elif mode == "off":
+        chosen, why = 1.0, "no water model (medium.mode off): no veiling light to go by"
+    elif mode != "global":
+        chosen, why = 1.0, (f"the water starts {mode} (its veiling light changes with "
+                            f"direction): beyond the bound the object field would fill the "
+                            f"open water")
+    else:
+        chosen, why = AUTO_FAR_FACTOR, (f"{100 * share:.1f}% of the training pixels are open "
+                                        f"water of one colour: far seabed may lie beyond the "
+                                        f"sparse points")
+    return {"requested": "auto", "chosen": chosen, "reason": why}
+
+
 def _replace_parameter(root: nn.Module, name: str, value: Tensor) -> nn.Parameter:
     *path, attr = name.split(".")
     parent = root
@@ -97,6 +146,7 @@ class SeaThruModel(nn.Module):
         if config.field.kind == "grid":
             self.field.decoder.init_colour(c_med)
         self.medium = Medium(initial_medium_mode(config, scene), sigma_init, c_med, config.field.colour_max)
+        self.far_bound = far_bound_choice(config, scene)
         self.register_buffer("stage", torch.tensor(0))
         self._occupancy: Tensor | None = None
         self.uniform_mix = config.sampler.uniform_mix  # the trainer anneals it
@@ -176,17 +226,20 @@ class SeaThruModel(nn.Module):
 
     def ray_interval(self, near: Tensor, far: Tensor) -> tuple[Tensor, Tensor]:
         """Where the object field is sampled along rays with the cameras' bounds ``near``,
-        ``far`` (R,): from ``near`` to ``far`` times ``sampler.far_factor`` (the water before
-        and after is integrated in closed form either way)."""
-        return near, far * self.config.sampler.far_factor
+        ``far`` (R,): from ``near`` to ``far`` times the far factor (:func:`far_bound_choice`;
+        the water before and after is integrated in closed form either way)."""
+        return near, far * self.far_bound["chosen"]
 
     def forward(self, origins: Tensor, dirs: Tensor, near: Tensor, far: Tensor,
                 generator: torch.Generator | None = None) -> ModelOutput:
         """Render rays: origins, dirs (R, 3) (unit), near, far (R,). ``generator``: jitter the
         samples (training); None: deterministic."""
         sigma_attn, sigma_bs, c_med = self.medium(dirs)
+        # the candidates are linear up to the box's exit but never past the camera's own far
+        # bound, whatever the far factor: beyond it they go linear in 1/t, so a widened
+        # interval does not thin the candidates on the near surfaces
+        t_split = torch.minimum(self._split_distance(origins, dirs, near), far)
         near, far = self.ray_interval(near, far)
-        t_split = self._split_distance(origins, dirs, near)
         if self.config.sampler.kind == "occupancy":
             return self._forward_occupancy(origins, dirs, near, far, t_split, generator,
                                            (sigma_attn, sigma_bs, c_med))

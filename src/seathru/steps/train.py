@@ -152,7 +152,8 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
                                          "water_refits": trainer.water_refits,
                                          "view_dependent_colour": trainer.view_selection,
                                          "glare_correction": export["glare"],
-                                         "capacity": prepared.capacity})
+                                         "capacity": prepared.capacity,
+                                         "far_factor": model.far_bound})
     test_text = "n/a" if result.final_test_psnr is None else f"{result.final_test_psnr:.2f} dB"
     log.info("trained %d steps in %.0f s (stopped by %s; %.1f steps/s, %.0f rays/s); held-out "
              "PSNR %s; medium %s", result.steps, result.elapsed_s, result.stopped_by,
