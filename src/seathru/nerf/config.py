@@ -72,7 +72,7 @@ class SamplerConfig:
                   "auto: 3 where the photographs show open water whose veiling light is the "
                   "same in every direction (the water starts global), else 1. 3 on the demo: "
                   "restored photographs +0.5..+1.0 dB, held-out views -0.6..-0.9 dB "
-                  "(benchmarks/results/far_factor.md)")
+                  "(benchmarks/results/far_factor_photos.md)")
     samples_per_ray: int = setting(16, help="object samples per ray (occupancy sampler)")
     candidates_linear: int = setting(64, help="candidate bins linear in the scene box")
     candidates_disparity: int = setting(16, help="candidate bins linear in 1/t beyond the box")

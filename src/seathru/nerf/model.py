@@ -74,9 +74,9 @@ def far_bound_choice(config: TrainConfig, scene: dict | None = None) -> dict[str
     open water has few of them, so the object field puts that seabed in front of the bound and
     the restoration divides it by too little water. Sampled to 3x the bound, the demo's
     restored photographs gain 0.5-1.0 dB, but its held-out views lose 0.6-0.9 dB on their near
-    surfaces (benchmarks/results/far_factor.md), so auto is not the default. Where the veiling
-    light changes with direction (``veiling``; d3_reef) the object field beyond the bound
-    fills the open water; without open water in view the bound already holds the scene.
+    surfaces (benchmarks/results/far_factor_photos.md), so auto is not the default. Where the
+    veiling light changes with direction (``veiling``; d3_reef) the object field beyond the
+    bound fills the open water; without open water in view the bound already holds the scene.
 
     Returns:
         ``{"requested", "chosen", "reason"}`` (selection.json's ``far_factor``).
