@@ -128,7 +128,7 @@ def model_surfaces(sim: Path, train: Path):
     normalised units). Returns (data or reason, model, truth, trained water, scale)."""
     from seathru.io.water import read_truth_water, read_water
     from seathru.nerf.rays import RayDataset
-    from seathru.nerf.training import refit_open_water_opacity
+    from seathru.nerf.water_refit import refit_open_water_opacity
     from seathru.nerf.water_fit import surface_data
 
     model, cameras, frames, images, masks, water_masks, in_view = trained_dive(sim, train)

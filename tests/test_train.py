@@ -310,53 +310,6 @@ def test_open_water_rays_pay_for_object_opacity_while_the_veiling_light_varies()
         assert loss(0.5) == pytest.approx(loss(0.0), rel=1e-6)
 
 
-def _evidence_trainer(track_change: dict | None = None, medium: str | None = None) -> Trainer:
-    """A 3-view dive of 48x64 pixels for the medium decision; with ``medium`` the water is set
-    dim (c_med 0.001) but attenuating, so no open water or backscatter shows water."""
-    from tests.test_nerf_prepare import _dive_image, _frames
-    from seathru.io.cameras import CameraSet
-    from seathru.nerf.prepare import prepare_run
-
-    rng = np.random.default_rng(6)
-    frames = _frames(3)
-    images = [_dive_image(rng, 0)[:48, :64] for _ in frames]
-    options = {"batch_rays": 256, "max_minutes": 0, "steps": 40}
-    if medium is not None:
-        options["medium"] = {"mode": medium}
-    config = settings.from_mapping(TrainConfig, options)
-    run = prepare_run(config, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
-                      [None] * 3, track_change=track_change)
-    if medium is not None:
-        run.model.medium.set_global([0.5] * 3, [0.5] * 3, [0.001] * 3)
-    return Trainer(run.model, run.data, device="cpu", frames=frames)
-
-
-def test_colour_fading_along_tracks_is_evidence_of_water():
-    change = {"tracks": 500, "t": [-12.0, 1.0, 0.5], "change_over_median_range": [-0.4, 0.02,
-                                                                                   0.01]}
-    evidence = [_evidence_trainer(track_change).select_medium()["statistics"]
-                ["evidence_of_water"] for track_change in (change, None)]
-    assert any("COLMAP tracks" in text and "-40%" in text for text in evidence[0])
-    assert not any("COLMAP tracks" in text for text in evidence[1])
-
-
-@pytest.mark.parametrize("gain_db, with_evidence, chosen", [
-    (1.7, False, "off"),      # what fern (in air) gained from a water model: not enough alone
-    (3.5, False, "global"),
-    (-0.3, True, "global"),   # with evidence, a tie keeps the water
-    (-0.8, True, "off")])
-def test_without_evidence_of_water_the_water_must_win_by_a_wide_margin(gain_db, with_evidence,
-                                                                        chosen, monkeypatch):
-    change = {"tracks": 500, "t": [-12.0, 1.0, 0.5],
-              "change_over_median_range": [-0.4, 0.02, 0.01]} if with_evidence else None
-    trainer = _evidence_trainer(change, medium="global")
-    monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0 + (
-        gain_db if trainer.model.medium.mode != "off" else 0.0))
-    selection = trainer.select_medium()
-    assert bool(selection["statistics"]["evidence_of_water"]) == with_evidence
-    assert selection["chosen"] == chosen, selection["reason"]
-
-
 @pytest.mark.parametrize("hold", [True, False])
 def test_water_a_refit_determined_is_held_there(default_scene, hold):
     trainer = _small_trainer(default_scene, medium={"mode": "global", "hold_refitted": hold})
@@ -378,37 +331,6 @@ def test_water_a_refit_determined_is_held_there(default_scene, hold):
         for channel, held in enumerate(flags):
             moved = after[key][channel] != pytest.approx(before[key][channel], abs=1e-6)
             assert moved == (not held or not hold), (key, channel)
-
-
-@pytest.mark.parametrize("surface_attn, evidence", [(0.0, False), (2.0, True)])
-def test_surfaces_that_fade_with_range_are_evidence_even_when_not_determined(
-        surface_attn, evidence, monkeypatch):
-    # fern's own surfaces fit no attenuation; a simulated orbit's faded by 57-67%
-    trainer = _evidence_trainer(medium="global")
-    monkeypatch.setattr(trainer, "assess_water", lambda: {
-        "surface_fit": {"sigma_attn": [surface_attn] * 3},
-        "fit_determined": {"sigma_attn": [False] * 3}})
-    monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0)
-    found = trainer.select_medium()["statistics"]["evidence_of_water"]
-    assert any("surfaces seen over a range" in text for text in found) == evidence, found
-
-
-def test_the_surface_fit_is_spared_when_other_evidence_shows_water(monkeypatch):
-    # it costs seconds of the budget and could only add evidence to a decision already made
-    tracks = {"tracks": 500, "t": [-12.0, 1.0, 0.5],
-              "change_over_median_range": [-0.4, 0.02, 0.01]}
-    calls = []
-    for track_change in (tracks, None):
-        trainer = _evidence_trainer(track_change, medium="global")
-        monkeypatch.setattr(trainer, "assess_water", lambda: calls.append(1) or {
-            "surface_fit": {"sigma_attn": [2.0] * 3}, "fit_determined": {"sigma_attn": [True] * 3}})
-        monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0)
-        stats = trainer.select_medium()["statistics"]
-        if track_change is not None:
-            assert not calls and stats["surface_attenuation_over_depth"] is None
-            assert any("COLMAP tracks" in text for text in stats["evidence_of_water"])
-        else:
-            assert calls == [1] and stats["attenuation_determined"] is True
 
 
 @pytest.mark.parametrize("tint, chosen", [(0.0, "off"), (0.9, "on")])
@@ -438,17 +360,6 @@ def test_explicit_view_dependence_runs_no_trial(default_scene):
     trainer.run()
     assert trainer.view_selection["chosen"] == "off"
     assert "trial_steps" not in trainer.view_selection and not trainer.model.field.uses_view
-
-
-def test_below_horizon_marks_rays_looking_down_by_more_than_the_margin():
-    from seathru.nerf.training import below_horizon
-    angles = torch.tensor([-30.0, -6.0, -4.0, 0.0, 20.0])
-    radians = torch.deg2rad(angles)
-    directions = torch.stack([torch.cos(radians), torch.zeros(5), torch.sin(radians)], -1)
-    below = below_horizon(directions, [0.0, 0.0, 1.0], 5.0)
-    assert below.tolist() == [True, True, False, False, False]
-    assert below_horizon(directions, None, 5.0) is None        # models saved without it
-    assert below_horizon(directions, [0.0, 0.0, 1.0], -1.0) is None
 
 
 def _true_depth_rays(scene_dir: Path, count: int = 2000, seed: int = 0):

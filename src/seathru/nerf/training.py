@@ -9,7 +9,8 @@ rate and reaches the finest grid: the model adapts to the machine it runs on.
 ``elapsed`` is training time: the held-out evaluations for the log are not counted (they are
 also left out of ``wall_time_s`` in the log), the medium trial and checkpoints are.
 
-Medium (``medium.mode=auto``): see ``Trainer.select_medium``. Losses: the paper's reconstruction
+Medium (``medium.mode=auto``) and view-dependent colour: ``seathru.nerf.selection``; the
+water refitted on the model's surfaces: ``seathru.nerf.water_refit``. Losses: the paper's reconstruction
 loss on linear data, its transmittance prior, mip-NeRF 360's distortion loss (keeps each ray's
 object weight in one compact surface, so fog in the object field does not stand in for water).
 Density gradients are dropped where fewer than ``min_views`` training cameras look (what only
@@ -30,7 +31,7 @@ import copy
 import math
 import time
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable
 
 import torch
 
@@ -41,13 +42,10 @@ from seathru.nerf.losses import (distortion_loss, mse, psnr_from_mse, reconstruc
 from seathru.nerf.model import SeaThruModel
 from seathru.nerf.rays import RayBatch, RayDataset
 from seathru.nerf.medium import DIRECTIONAL_MODES
-from seathru.nerf.water_fit import (SurfaceData, WaterFit, correspondence_rays, fit_surfaces,
-                                    surface_data)
-from seathru.nerf.water_uncertainty import (far_surface_range, interval_determined,
-                                            laplace_halfwidths, robust_halfwidths)
+from seathru.nerf.selection import ModelSelection
+from seathru.nerf.water_refit import WaterRefitting
 
 CHECKPOINT_FORMAT = "seathru-train-checkpoint/1"
-WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
 
 
 @dataclass
@@ -96,7 +94,11 @@ def _adam(groups: list[dict]) -> torch.optim.Adam:
         return torch.optim.Adam(groups, betas=(0.9, 0.99), eps=1e-15)
 
 
-class Trainer:
+class Trainer(ModelSelection, WaterRefitting):
+    """The training loop over a model and its rays; the model choices are
+    ``seathru.nerf.selection.ModelSelection``'s, the water refits
+    ``seathru.nerf.water_refit.WaterRefitting``'s."""
+
     def __init__(self, model: SeaThruModel, data: RayDataset, test: RayBatch | None = None,
                  callbacks: TrainCallbacks | None = None, device="cpu", frames=None):
         self.model = model
@@ -166,40 +168,6 @@ class Trainer:
                 self._seen_cache[shape] = torch.nn.functional.interpolate(
                     self._seen, size=shape, mode="nearest")
             param.grad.mul_(self._seen_cache[shape])
-
-    def _hold_refitted_water(self) -> None:
-        """Zero the gradient of the water values the latest refit determined to within
-        ``medium.hold_max_relative`` (``medium.hold_refitted``).
-
-        Trained on through the NeRF, the water drifts from its surface fit as fog in the object
-        field stands in for it (on the survey demo, attenuation from within 3% of the truth at
-        the last refit to 23-44% low at the end of the run); the surface fit is not biased that
-        way. In veiling mode the directional veiling light keeps training.
-        """
-        if not self.config.medium.hold_refitted:
-            return
-        medium = self.model.medium
-        key = (len(self.water_refits), medium.mode)
-        if self._held_water is None or self._held_water[0] != key:
-            self._held_water = (key, self._held_water_flags(medium.mode))
-        for param, flags in zip(medium.global_parameters(), self._held_water[1]):
-            if param.grad is not None and flags is not None:
-                param.grad[flags.to(param.grad.device)] = 0.0
-
-    def _held_water_flags(self, mode: str) -> list[torch.Tensor | None]:
-        """Per water key, (3,) bool of the values held (None: none), from the latest refit."""
-        fitted = [r for r in self.water_refits if r.get("accepted")]
-        if not fitted:
-            return [None] * len(WATER_KEYS)
-        last, limit = fitted[-1], self.config.medium.hold_max_relative
-        flags = []
-        for key in WATER_KEYS:
-            held = [bool(ok and half <= limit * abs(value)) for ok, half, value in zip(
-                last["accepted"][key], last["halfwidth95"][key], last["after"][key])]
-            if key == "c_med" and mode == "veiling":
-                held = [False] * 3
-            flags.append(torch.tensor(held) if any(held) else None)
-        return flags
 
     # -------------------------------------------------------------------- optimiser
     def _groups(self) -> list[dict]:
@@ -320,368 +288,7 @@ class Trainer:
         self._eval_seconds = getattr(self, "_eval_seconds", 0.0) + time.perf_counter() - start
         return value
 
-    # -------------------------------------------------------------------- medium selection
-    def _probe_psnr(self) -> float:
-        rendered = self.render_batch(self.probe)
-        return psnr_from_mse(float(mse(rendered["rgb"], self.probe.rgb)))
-
-    def _state(self) -> dict:
-        return {"model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},
-                "optimizer": copy.deepcopy(self.optimizer.state_dict()),
-                "generator": self.generator.get_state(), "step": self.step}
-
-    def _restore(self, state: dict) -> None:
-        self.model.load_state_dict_resizing(state["model"])
-        self.optimizer = self._build_optimizer()
-        self.optimizer.load_state_dict(copy.deepcopy(state["optimizer"]))
-        self.generator.set_state(state["generator"])
-        self.step = state["step"]
-        self.model.refresh_occupancy()
-
-    def _trial_steps(self, share: float) -> int:
-        """Steps of one trial: ``share`` of the steps the run will make (10 to 500)."""
-        c = self.config
-        budget = c.max_minutes * 60.0 if c.max_minutes and c.max_minutes > 0 else math.inf
-        rate = self.step / max(self.elapsed_s, 1e-6)
-        horizon = min(c.step_limit, rate * budget)
-        return int(min(500, max(10, share * horizon)))
-
-    def _race(self, setups: dict[str, Callable[[], None]], trial: int
-              ) -> tuple[dict[str, float], dict[str, dict]]:
-        """Train ``trial`` steps from the current state under each setup in turn, on the same
-        batches (the batch generator is restored with the state), and measure each on the
-        held-out training rays. Returns the PSNR and the end state per setup name (all but the
-        last's: the model is left where the last one ended)."""
-        start = self._state()
-        results, ends = {}, {}
-        previous = None
-        for name, setup in setups.items():
-            if previous is not None:
-                ends[previous] = self._state()
-                self._restore(start)
-            previous = name
-            setup()
-            progress = self._progress()
-            for _ in range(trial):
-                self._set_lr(progress)
-                if self._optimise_once() is not None:
-                    self.step += 1
-            results[name] = self._probe_psnr()
-        return results, ends
-
-    def select_view_dependence(self) -> dict:
-        """``field.view_dependent_colour=auto``: object colour with or without the view
-        direction, the simpler unless the views ask for more.
-
-        The grid field trains without it until ``field.view_select_at``: while the water is
-        refitted, a view-dependent colour would stand in for it (looking across a survey, the
-        direction goes with the range; the clearer waters of the water benchmark ended 2-3 dB
-        worse restored when it was on from the start). Then the model trains on for the same
-        few steps on the same batches without and with it (``field.view_trial_share`` of the
-        run each; the direction's weights start at zero, so both start from the same colours)
-        and the two are compared on the held-out training rays. It is kept only when it does
-        better by ``field.view_margin_db``: it costs the SH of every colour sample, and where
-        the surfaces look the same from every side it can only fit noise or stand in for
-        errors of the geometry or the water.
-        """
-        c = self.config
-        decoder = self.model.field.decoder
-        trial = self._trial_steps(c.field.view_trial_share)
-        from_step = self.step
-        results, ends = self._race({"off": lambda: decoder.set_view_enabled(False),
-                                    "on": lambda: decoder.set_view_enabled(True)}, trial)
-        gain = results["on"] - results["off"]
-        chosen = "on" if gain > c.field.view_margin_db else "off"
-        if chosen == "off":
-            self._restore(ends["off"])
-        self._take_snapshot()
-        verdict = (f"better by {gain:.2f} dB > {c.field.view_margin_db:g} dB: kept"
-                   if chosen == "on" else
-                   f"not better by more than {c.field.view_margin_db:g} dB ({gain:+.2f} dB): "
-                   "colour without the view direction")
-        return {"requested": "auto", "chosen": chosen, "decided_at_step": from_step,
-                "trial_steps": trial, "validation_psnr_off": results["off"],
-                "validation_psnr_on": results["on"], "margin_db": c.field.view_margin_db,
-                "reason": (f"trained {trial} steps with and without view-dependent colour from "
-                           f"step {from_step}: on {len(self.probe)} held-out training rays "
-                           f"{results['on']:.2f} dB with it, {results['off']:.2f} dB without; "
-                           f"{verdict}")}
-
-    def select_medium(self) -> dict:
-        """``medium.mode=auto``: no water (plain NeRF) or the water the run started with, the
-        simplest that the training views support.
-
-        The water has been trained so far: ``global``, or ``veiling`` (veiling light by view
-        direction) where the open water of the training images changes colour with direction
-        (``seathru.nerf.model.initial_medium_mode``). If what it adds to the images is
-        negligible (backscatter below ``auto_backscatter_share`` of the image and attenuation
-        over the median scene depth below ``auto_attenuation``) the water is switched off at
-        once. Otherwise both models train on from here for the same few steps on the same
-        batches (``auto_trial_share`` of the run each) and are compared on held-out training
-        rays. The images' own evidence of water decides ties: open water in the photographs
-        (smooth regions reaching the top of the frame, ``seathru.radiometry.open_water``) or in
-        the model (rays that meet no surface; both above ``auto_open_water_share``, and only
-        where the veiling light is visible: ``auto_veiling_brightness``), a density wall at the
-        far bound standing in for it, the input colour changing with range along the COLMAP
-        tracks (``seathru.io.tracks.input_colour_change``), attenuation the surfaces seen
-        over a range of distances determine (``assess_water``; made only when nothing else
-        shows water, as it costs seconds of the budget), or a fitted water whose
-        backscatter is a large share of the image (``auto_backscatter_evidence``). With such
-        evidence the water stays unless no water is better by ``auto_margin_db``; without it,
-        the water must be better by ``auto_margin_no_evidence_db``. The paper's fully
-        view-dependent water is never picked automatically: it can also absorb errors of a
-        half-trained scene; ask for it with ``medium.mode=view``.
-        """
-        c = self.config
-        rendered = self.render_batch(self.probe)
-        water = self.model.water_parameters()
-        mean_rgb = rendered["rgb"].mean(0).clamp_min(1e-6)
-        backscatter_share = float((rendered["backscatter"].mean(0) / mean_rgb).max())
-        hit = rendered["opacity"] > 0.5
-        if bool(hit.any()):
-            depth = float(torch.quantile(rendered["depth"][hit].float(), 0.5))
-        else:
-            depth = float(self.model.scene.get("typical_range", 1.0))
-        attenuation = 1.0 - math.exp(-max(water["sigma_attn"]) * depth)
-        # open water: rays that meet no surface AND whose pixel is the veiling light itself; an
-        # empty ray whose pixel differs (textured seabed explained by water) is no evidence
-        c_med = torch.tensor(water["c_med"], device=rendered["rgb"].device)
-        observed = self.probe.rgb.to(c_med.device)
-        matches = ((observed - c_med).abs() / c_med.clamp_min(0.02)).amax(-1) < 0.15
-        # black "open water" is no veiling light: clear water, air, a black background
-        def visible(colour: torch.Tensor) -> bool:
-            return float(colour.mean()) >= c.medium.auto_veiling_brightness * float(
-                observed.mean())
-
-        open_water = float(((rendered["opacity"] < 0.1) & matches).float().mean()) \
-            if visible(c_med) else 0.0
-        far = self.model.ray_interval(self.probe.near, self.probe.far)[1].to(
-            rendered["depth_median"].device)
-        walled = (rendered["opacity"] > 0.5) & (rendered["depth_median"] > 0.95 * far)
-        wall = float(walled.float().mean()) \
-            if bool(walled.any()) and visible(observed[walled]) else 0.0
-        image_water = float(self.model.scene.get("open_water_image_share", 0.0))
-        tracks = self.model.scene.get("track_colour_change") or {}
-        fading = [abs(t) > c.medium.auto_track_t and abs(change) > c.medium.auto_track_change
-                  for t, change in zip(tracks.get("t", []),
-                                       tracks.get("change_over_median_range", []))]
-        evidence = [text for present, text in (
-            (image_water > c.medium.auto_open_water_share,
-             f"{100 * image_water:.1f}% of the training pixels are open water (smooth regions "
-             "reaching the top of the frame)"),
-            (any(fading),
-             "along {} COLMAP tracks the input colour changes with range by {} over the median "
-             "range (log colour, R G B)".format(tracks.get("tracks"), ", ".join(
-                 f"{100 * v:+.0f}%" for v in tracks.get("change_over_median_range", [])))),
-            (open_water > c.medium.auto_open_water_share,
-             f"{100 * open_water:.1f}% of the rays meet no surface and show the veiling light "
-             "(open water)"),
-            (wall > c.medium.auto_open_water_share,
-             f"{100 * wall:.1f}% of the rays end in a density wall at the far bound"),
-            (backscatter_share >= c.medium.auto_backscatter_evidence,
-             f"the fitted water's backscatter makes up {100 * backscatter_share:.0f}% of the "
-             "image"),
-        ) if present]
-        # The surface fit costs seconds of the budget (12 s of a 90-s demo run) and can only
-        # add evidence: it is made when nothing else shows water, where it decides.
-        surface_attenuation, determined = None, None
-        if not evidence:
-            surface_attenuation, determined = self._surface_fading(depth)
-            if (determined or surface_attenuation >= c.medium.auto_surface_fading) \
-                    and surface_attenuation > 2 * c.medium.auto_attenuation:
-                evidence.append(f"surfaces seen over a range of distances fade by "
-                                f"{100 * surface_attenuation:.0f}% over the median depth"
-                                + (" (attenuation determined)" if determined else ""))
-        stats = {"backscatter_share": backscatter_share, "attenuation_over_depth": attenuation,
-                 "scene_depth_median": depth, "object_hit_share": float(hit.float().mean()),
-                 "open_water_share": open_water, "open_water_image_share": image_water,
-                 "track_colour_change": tracks or None,
-                 "far_wall_share": wall,
-                 "surface_attenuation_over_depth": surface_attenuation,
-                 "attenuation_determined": determined, "evidence_of_water": evidence,
-                 "fitted_global": water, "validation_rays": len(self.probe)}
-        thresholds = {"backscatter_share": c.medium.auto_backscatter_share,
-                      "attenuation_over_depth": c.medium.auto_attenuation,
-                      "open_water_share": c.medium.auto_open_water_share,
-                      "margin_db": c.medium.auto_margin_db,
-                      "margin_no_evidence_db": c.medium.auto_margin_no_evidence_db,
-                      "veiling_brightness": c.medium.auto_veiling_brightness}
-        decided_at = {"decided_at_step": self.step, "decided_at_progress": self._progress()}
-        water_mode = self.model.medium.mode   # global, or veiling where the open water asks
-        if not evidence and backscatter_share < c.medium.auto_backscatter_share \
-                and attenuation < c.medium.auto_attenuation:
-            chosen = "off"
-            reason = (f"fitted water is negligible: backscatter is {100 * backscatter_share:.2f}% "
-                      f"of the image (< {100 * c.medium.auto_backscatter_share:g}%) and attenuation "
-                      f"over the median scene depth ({depth:.3g}) is {100 * attenuation:.2f}% "
-                      f"(< {100 * c.medium.auto_attenuation:g}%): clear water, plain NeRF")
-            self.model.medium.set_mode(chosen)
-        else:
-            trial = self._trial_steps(c.medium.auto_trial_share)
-            from_step = self.step
-            results, ends = self._race({mode: (lambda m=mode: self.model.medium.set_mode(m))
-                                        for mode in ("off", water_mode)}, trial)
-            gain = results[water_mode] - results["off"]
-            margin = c.medium.auto_margin_db if evidence \
-                else c.medium.auto_margin_no_evidence_db
-            chosen = water_mode if (gain > -margin if evidence else gain > margin) else "off"
-            if chosen == "off":
-                self._restore(ends["off"])
-                self.model.medium.set_mode("off")
-            stats.update({"trial_steps": trial, "validation_psnr_off": results["off"],
-                          "validation_psnr_water": results[water_mode]})
-            if evidence:
-                verdict = (f"kept: the images show water ({'; '.join(evidence)}) and no water "
-                           f"is not better by more than {margin:g} dB ({gain:+.2f} dB for the "
-                           "water)" if chosen != "off" else
-                           f"dropped despite signs of water ({'; '.join(evidence)}): no water "
-                           f"is better by {-gain:.2f} dB > {margin:g} dB")
-            else:
-                verdict = (f"better by {gain:.2f} dB > {margin:g} dB: one {water_mode} medium"
-                           if chosen != "off" else
-                           f"not better by more than {margin:g} dB ({gain:+.2f} dB) and the "
-                           "images show no open water, far wall or fading with range: no "
-                           "water, plain NeRF")
-            reason = (f"trained {trial} steps with and without water from step "
-                      f"{from_step}: on {len(self.probe)} held-out training rays the water "
-                      f"model ({water_mode}) reaches {results[water_mode]:.2f} dB, no water "
-                      f"{results['off']:.2f} dB; the water is {verdict} (it made up "
-                      f"{100 * backscatter_share:.1f}% of the image as backscatter, attenuation "
-                      f"{100 * attenuation:.1f}% over the median depth {depth:.3g})")
-        self.model.medium.to(self.device)
-        self._take_snapshot()
-        return {"requested": "auto", "chosen": chosen, "reason": reason,
-                "candidates": ["off", water_mode], **decided_at,
-                "statistics": stats, "thresholds": thresholds}
-
-    def _surface_fading(self, depth: float) -> tuple[float, bool]:
-        """How much the surfaces seen over a range of distances fade over ``depth`` by their
-        own water fit (``assess_water``), and whether their attenuation is determined."""
-        assessment = self.assess_water() or {}
-        determined = all(assessment.get("fit_determined", {}).get("sigma_attn", [False]))
-        return 1.0 - math.exp(-max(assessment.get("surface_fit", {}).get(
-            "sigma_attn", [0.0])) * depth), determined
-
     # -------------------------------------------------------------------- loop
-    @torch.no_grad()
-    def _surface_data(self, seed: int, voxel_factors: Sequence[float] = (1.0,)
-                      ) -> list[SurfaceData | str]:
-        """Surface data of one set of rendered training rays, grouped at ``medium.refit_voxel``
-        times each of ``voxel_factors``."""
-        c, model = self.config, self.model
-        point_ids = None
-        if c.medium.refit_grouping == "points":
-            found = correspondence_rays(self.data, self.render_batch, c.medium.refit_rays // 4,
-                                        c.medium.refit_rays, seed, c.medium.refit_opacity)
-            rays, depth, opacity, point_ids = (found.rays, found.depth, found.opacity,
-                                               found.point_ids)
-        else:
-            rays = self.data.fixed_subset(c.medium.refit_rays, seed)
-            rendered = self.render_batch(rays)
-            depth, opacity = rendered["depth_median"], rendered["opacity"]
-        diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
-        open_water = refit_open_water_opacity(c.medium, rays.open_water is not None,
-                                              self._progress())
-        below = below_horizon(rays.directions, model.scene.get("up"), c.medium.horizon_margin)
-        # the first grouping is the refit's own; other factors regroup the same pixels by voxel
-        return [surface_data(rays.origins, rays.directions, rays.rgb, depth, opacity,
-                             factor * c.medium.refit_voxel * diagonal, c.medium.refit_opacity,
-                             open_water_opacity=open_water, open_water=rays.open_water,
-                             below_horizon=below, point_ids=point_ids if i == 0 else None)
-                for i, factor in enumerate(voxel_factors)]
-
-    def _fit_surfaces(self, data: SurfaceData, start: dict) -> tuple[WaterFit, SurfaceData]:
-        """The water fitted to ``data`` from ``start`` with the medium's refit settings, and
-        the pixels it used (``water_fit.fit_surfaces``)."""
-        medium = self.config.medium
-        return fit_surfaces(data, start, medium.refit_steps, self.model.medium.colour_max,
-                            medium.dark_pixel_bound, medium.balance_brightness,
-                            medium.refit_trim)
-
-    @torch.no_grad()
-    def refit_water(self) -> dict:
-        """Refit the global water to the training images on the model's own geometry.
-
-        Early in training the water settles wherever it started and fog in the object field
-        makes up for the rest; on surfaces the model already places well (opacity above
-        ``medium.refit_opacity``), the same surface seen at several ranges pins the water
-        down (``seathru.nerf.water_fit``). The fitted values replace the medium's and its
-        optimiser state is reset. Returns a record of what was done (for selection.json).
-        """
-        model = self.model
-        record = {"step": self.step, "progress": round(self._progress(), 4)}
-        if model.medium.mode not in ("global", "veiling"):
-            return {**record, "skipped": f"medium mode is {model.medium.mode}"}
-        started = time.perf_counter()
-        data = self._surface_data(self.config.seed + 5 + len(self.water_refits))[0]
-        if isinstance(data, str):
-            return {**record, "skipped": data}
-        before = model.water_parameters()
-        offered = len(data.ranges)
-        fit, data = self._fit_surfaces(data, before)
-        spread = laplace_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups)
-        accepted = refit_acceptance(fit, spread, before, model.medium.colour_max,
-                                    self.config.medium.refit_max_relative)
-        after = {k: [f if ok else b for f, b, ok in zip(getattr(fit, k), before[k],
-                                                        accepted[k])] for k in WATER_KEYS}
-        if model.medium.mode == "veiling":   # one c_med does not describe it: keep it
-            after["c_med"] = before["c_med"]
-        model.medium.set_global(after["sigma_attn"], after["sigma_bs"],
-                                after["c_med"] if model.medium.mode == "global" else None)
-        for param in model.medium.global_parameters():
-            self.optimizer.state.pop(param, None)
-        record.update({"pixels": fit.pixels, "left_out": offered - len(data.ranges),
-                       "groups": fit.groups, "seconds":
-                       round(time.perf_counter() - started, 2),
-                       "before": {k: before[k] for k in WATER_KEYS},
-                       "fitted": {k: getattr(fit, k) for k in WATER_KEYS},
-                       "halfwidth95": spread.halfwidth, "accepted": accepted, "after": after})
-        kept = sum(not ok for values in accepted.values() for ok in values)
-        note = f"; {kept} of 9 values left as they were: the views do not determine them" \
-            if kept else ""
-        self._say(f"step {self.step}: water refitted on {fit.pixels} surface pixels: "
-                  f"sigma_attn {_fmt(before['sigma_attn'])} -> {_fmt(after['sigma_attn'])}, "
-                  f"sigma_bs {_fmt(before['sigma_bs'])} -> {_fmt(after['sigma_bs'])}, c_med "
-                  f"{_fmt(before['c_med'])} -> {_fmt(after['c_med'])} (normalised{note})")
-        return record
-
-    @torch.no_grad()
-    def assess_water(self, trained: dict | None = None) -> dict | None:
-        """How well the images determine the trained water: a fit on the final geometry's
-        surfaces and its robust 95% half-widths (``water_uncertainty.robust_halfwidths``: statistical and
-        systematic parts), normalised units; ``determined`` judges the interval around the
-        ``trained`` values (``water_uncertainty.interval_determined``; default: the model's water),
-        ``fit_determined`` the surface fit's own half-widths. None when the medium is neither
-        global nor veiling (whose c_med is the mean over directions) or there are too few
-        surface pixels."""
-        model = self.model
-        if model.medium.mode not in ("global", "veiling"):
-            return None
-        medium = self.config.medium
-        data, *regrouped = self._surface_data(
-            self.config.seed + 97, (1.0, *medium.interval_voxel_factors))
-        if isinstance(data, str):
-            return {"skipped": data}
-        offered = len(data.ranges)
-        fit, data = self._fit_surfaces(data, model.water_parameters())
-        beyond = far_surface_range(data.ranges) if data.open_water_below_horizon else None
-        spread = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,
-                                   colour_max=model.medium.colour_max,
-                                   open_water_beyond=beyond,
-                                   dark=data.dark if medium.dark_pixel_bound else None,
-                                   range_error=medium.interval_range_error,
-                                   min_relative=medium.interval_floor,
-                                   regrouped=[(d.ranges, d.observed, d.ids, d.groups)
-                                              for d in regrouped if not isinstance(d, str)])
-        return {"surface_fit": {k: getattr(fit, k) for k in WATER_KEYS},
-                "halfwidth95": spread.halfwidth, "fit_determined": spread.determined,
-                "determined": interval_determined(trained or model.water_parameters(), fit,
-                                                  spread.halfwidth),
-                "pixels": fit.pixels, "left_out": offered - len(data.ranges),
-                "groups": fit.groups,
-                "effective_samples": spread.effective_samples,
-                **({"open_water_beyond": beyond} if beyond is not None else {})}
-
     def _progress(self) -> float:
         c = self.config
         budget = c.max_minutes * 60.0 if c.max_minutes and c.max_minutes > 0 else math.inf
@@ -945,45 +552,8 @@ def _concatenated(a: RayBatch, b: RayBatch) -> RayBatch:
                       ("origins", "directions", "near", "far", "rgb")), water)
 
 
-def below_horizon(directions: torch.Tensor, up, margin_deg: float) -> torch.Tensor | None:
-    """(R,) bool: the unit ``directions`` (R, 3) that look more than ``margin_deg`` below the
-    horizon of the vertical ``up`` (3 floats, or None: not known, as in models saved before
-    the scene kept it); None where the horizon is not used (negative margin)."""
-    if up is None or margin_deg < 0:
-        return None
-    vertical = torch.as_tensor(up, dtype=directions.dtype, device=directions.device)
-    return directions @ vertical < -math.sin(math.radians(margin_deg))
 
 
-def refit_open_water_opacity(medium, from_images: bool, progress: float) -> float:
-    """The ``open_water_opacity`` a water fit at ``progress`` passes to
-    ``water_fit.surface_data`` (0: no open water): the photographs' open water needs no
-    converged model; the model's empty rays count only from ``medium.open_water_from``."""
-    return medium.open_water_opacity if from_images or progress >= medium.open_water_from \
-        else 0.0
-
-
-def refit_acceptance(fit, spread, before: dict, colour_max: float,
-                     max_relative: float) -> dict[str, list[bool]]:
-    """Which refitted values replace the current ones: those the views determine.
-
-    A value is kept out when its 95% half-width exceeds ``max_relative`` of it, or when the fit
-    ran to the edge of the parameter space (a coefficient collapsing below 1% of its current
-    value, a veiling light at 95% of ``colour_max``): there the curvature says nothing and the
-    fit has traded the water for the surfaces' colours.
-    """
-    accepted = {}
-    for key in WATER_KEYS:
-        flags = []
-        for value, half, current in zip(getattr(fit, key), spread.halfwidth[key], before[key]):
-            edge = value >= 0.95 * colour_max if key == "c_med" else value < 0.01 * current
-            flags.append(bool(half <= max_relative * abs(value) and not edge))
-        accepted[key] = flags
-    return accepted
-
-
-def _fmt(values) -> str:
-    return "(" + ", ".join(f"{v:.3g}" for v in values) + ")"
 
 
 def _resample_like(value: torch.Tensor, shape) -> torch.Tensor:
