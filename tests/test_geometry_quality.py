@@ -138,6 +138,12 @@ def test_failure_message_lists_attempts_and_advice():
         "COLMAP registered only 0 of 3 images")
 
 
+def test_a_failure_on_a_handful_of_images_says_the_set_is_too_small():
+    small = failure_message([], None, 3, QualityGate())
+    assert "Only 3 images: structure from motion and a NeRF need tens of overlapping" in small
+    assert "Only" not in failure_message([], None, 40, QualityGate())
+
+
 @pytest.mark.parametrize("fraction", [0.0, 0.5, 1.0])
 def test_attempt_record_has_the_registered_fraction(fraction):
     record = attempt(registered=int(10 * fraction), total=10).to_dict()

@@ -478,7 +478,8 @@ def test_a_widened_far_bound_leaves_the_near_candidates_as_they_were(monkeypatch
 def test_an_explicit_far_factor_is_kept():
     config = TrainConfig.from_dict({**SMALL, "far_factor": 1.5, "medium": "veiling"})
     choice = far_bound_choice(config, {**scene_dict(), "open_water_image_share": 0.0})
-    assert choice == {"requested": 1.5, "chosen": 1.5, "reason": "set (sampler.far_factor)"}
+    assert choice == {"requested": 1.5, "chosen": 1.5,
+                      "reason": "sampler.far_factor 1.5 (0: auto)"}
 
 
 def test_upsampling_the_grids_keeps_the_rendering():

@@ -256,6 +256,10 @@ def unconfirmed_run(runs: list[SfmRun], matcher: str, cross_check: bool) -> SfmR
     return best
 
 
+#: Below this many images a failed registration is most likely the set's size.
+FEW_IMAGES = 10
+
+
 def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total: int,
                     gate: QualityGate) -> str:
     """Why no model registers enough images: every attempt, and what to try next."""
@@ -266,8 +270,11 @@ def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total
         for a in attempts)
     unregistered = chosen.unregistered if chosen else []
     listed = ", ".join(unregistered[:20]) + (" ..." if len(unregistered) > 20 else "")
+    few = (f" Only {total} images: structure from motion and a NeRF need tens of overlapping "
+           f"photographs of the scene (each part seen from three or more positions)."
+           if total < FEW_IMAGES else "")
     return (f"COLMAP registered only {registered} of {total} images in its largest model "
-            f"(need {gate.min_registered_fraction:.0%}). Tried: {tried}. Try --matcher "
+            f"(need {gate.min_registered_fraction:.0%}).{few} Tried: {tried}. Try --matcher "
             f"exhaustive for an unordered set or a larger --overlap for an ordered transect, "
             f"more features (--max-features 16384), a larger --max-image-size, a known focal "
             f"length (--focal-px or --focal-mm with --sensor-width-mm), or remove images that "

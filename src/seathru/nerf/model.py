@@ -88,7 +88,8 @@ def far_bound_choice(config: TrainConfig, scene: dict | None = None) -> dict[str
     """
     requested = float(config.sampler.far_factor)
     if requested:
-        return {"requested": requested, "chosen": requested, "reason": "set (sampler.far_factor)"}
+        return {"requested": requested, "chosen": requested,
+                "reason": f"sampler.far_factor {requested:g} (0: auto)"}
     scene = scene or {}
     share = float(scene.get("open_water_image_share", 0.0))
     mode = initial_medium_mode(config, scene)
