@@ -9,10 +9,11 @@ rate and reaches the finest grid: the model adapts to the machine it runs on.
 ``elapsed`` is training time: the held-out evaluations for the log are not counted (they are
 also left out of ``wall_time_s`` in the log), the medium trial and checkpoints are.
 
-Medium (``medium.mode=auto``) and view-dependent colour: ``seathru.nerf.selection``; the
-water refitted on the model's surfaces: ``seathru.nerf.water_refit``. Losses: the paper's reconstruction
-loss on linear data, its transmittance prior, mip-NeRF 360's distortion loss (keeps each ray's
-object weight in one compact surface, so fog in the object field does not stand in for water).
+Medium (``medium.mode=auto``) and view-dependent colour: ``seathru.nerf.selection``; the water
+refitted on the model's surfaces: ``seathru.nerf.water_refit``. Losses: the paper's
+reconstruction loss on linear data, its transmittance prior, mip-NeRF 360's distortion loss
+(keeps each ray's object weight in one compact surface, so fog in the object field does not
+stand in for water).
 Density gradients are dropped where fewer than ``min_views`` training cameras look (what only
 one camera sees is unconstrained and becomes floaters in front of it). CPU threads: the faster
 of ``--threads`` and 1 is measured on real steps every few hundred steps (``ThreadTuner``).
