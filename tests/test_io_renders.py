@@ -111,4 +111,4 @@ def test_exposure_references_spread_over_training_images_and_skip_unreadable(tmp
     values = [float(image[0, 0, 0]) for image in renders.exposure_references(cameras, 10)]
     assert len(values) == 9 and values == sorted(values) and values[-1] == 29
     assert "skipping im00" in caplog.text
-    assert renders.read_view_image(cameras, frames[0]) is None
+    assert renders.read_view_photograph(cameras, frames[0]) == (None, None)

@@ -14,6 +14,7 @@ from seathru.io import tracks as tracks_io
 from seathru.io.cameras import CameraSet, Frame
 from seathru.io.images import write_float_tiff
 from seathru.io.training import read_frame_images
+from seathru.radiometry.linearise import resize_area
 from seathru.radiometry.glare import (GlareCorrection, brighter_near_open_water, glare_gain,
                                       open_water_distance, photograph_gain)
 from seathru.radiometry.open_water import open_water_mask
@@ -161,7 +162,7 @@ def test_the_model_file_carries_the_correction_to_the_render_and_evaluate_steps(
     evaluate steps read the photographs without it (seathru.io.renders)."""
     import torch
 
-    from seathru.io.renders import photograph_glare, read_view_image
+    from seathru.io.renders import photograph_glare, read_view_photograph
 
     torch.save({"config": {}, "glare": CORRECTION.to_dict()}, tmp_path / "model.pt")
     assert photograph_glare(tmp_path / "model.pt") == CORRECTION
@@ -180,8 +181,10 @@ def test_the_model_file_carries_the_correction_to_the_render_and_evaluate_steps(
                   cx=24.0, cy=16.0, c2w=np.eye(4).tolist(), near=0.1, far=5.0, split="test")
     cameras = CameraSet(frames=[frame], near=0.1, far=5.0, root=tmp_path)
     expected = image / photograph_gain(image, CORRECTION)[..., None]
-    assert np.allclose(read_view_image(cameras, frame, CORRECTION), expected, rtol=1e-5)
-    assert np.allclose(read_view_image(cameras, frame), image)
+    photograph, gain = read_view_photograph(cameras, frame, CORRECTION)
+    assert np.allclose(photograph / gain[..., None], expected, rtol=1e-5)
+    assert np.allclose(photograph, image)
+    assert read_view_photograph(cameras, frame)[1] is None
     assert not np.allclose(expected, image, rtol=0.05)
 
 
@@ -197,13 +200,47 @@ def test_held_out_renders_get_the_glare_back_and_their_photograph_loses_it():
     images = {key: rng.uniform(0.0, 1.0, (32, 48, 3))
               for key in ("rgb", "direct", "backscatter", "restored")}
     images["depth"] = rng.uniform(1.0, 2.0, (32, 48))
-    gain = glare_gain(open_water_distance(open_water_mask(photograph)), CORRECTION)[..., None]
+    gain = glare_gain(open_water_distance(open_water_mask(photograph)), CORRECTION)
     assert not np.allclose(gain, 1.0)
-    clean, recorded = split_glare(photograph, images, CORRECTION)
-    assert np.allclose(clean, photograph / gain)
+    clean, recorded = split_glare(photograph, images, gain)
+    assert np.allclose(clean, photograph / gain[..., None])
     for key in ("rgb", "direct", "backscatter"):
-        assert np.allclose(recorded[key], images[key] * gain)
+        assert np.allclose(recorded[key], images[key] * gain[..., None])
     assert recorded["restored"] is images["restored"] and recorded["depth"] is images["depth"]
     same, untouched = split_glare(photograph, images, None)
     assert same is photograph and untouched == images
-    assert split_glare(None, images, CORRECTION) == (None, images)
+    assert split_glare(None, images, gain) == (None, images)
+
+
+def test_a_held_out_view_finds_its_open_water_on_the_pixels_its_mask_keeps(tmp_path):
+    """The gain taken out of a held-out photograph is the one the train step divides it by:
+    open water outside the frame's mask file does not count (the undistorted border, a
+    diver's light), so the render step's gain matches the training's."""
+    from seathru.io.images import write_mask
+    from seathru.io.renders import read_view_photograph, split_glare
+
+    rng = np.random.default_rng(7)
+    image = rng.uniform(0.1, 0.6, (32, 48, 3)).astype(np.float32)
+    image[:10] = (0.05, 0.3, 0.5)          # open water the mask keeps
+    image[:, 40:] = (0.05, 0.3, 0.5)       # and a strip it leaves out
+    mask = np.ones((32, 48), np.uint8) * 255
+    mask[:, 40:] = 0
+    (tmp_path / "images").mkdir()
+    (tmp_path / "masks").mkdir()
+    write_float_tiff(tmp_path / "images" / "v.tiff", image)
+    write_mask(tmp_path / "masks" / "v.png", mask)
+    frame = Frame(name="v", image="images/v.tiff", mask="masks/v.png", width=48, height=32,
+                  fx=40.0, fy=40.0, cx=24.0, cy=16.0, c2w=np.eye(4).tolist(), near=0.1,
+                  far=5.0, split="test")
+    cameras = CameraSet(frames=[frame], near=0.1, far=5.0, root=tmp_path)
+    photograph, gain = read_view_photograph(cameras, frame, CORRECTION)
+    assert np.allclose(photograph, image)
+    (trained,), _ = read_frame_images(cameras, [frame], CORRECTION)
+    assert np.allclose(photograph / gain[..., None], trained, rtol=1e-5)
+    small, small_gain = read_view_photograph(cameras, frame, CORRECTION, (24, 16))
+    assert small.shape == (16, 24, 3) and small_gain.shape == (16, 24)
+    assert np.allclose(split_glare(small, {}, small_gain)[0],
+                       resize_area(image, (24, 16)) / resize_area(gain, (24, 16))[..., None])
+    unmasked = photograph_gain(image, CORRECTION)
+    assert np.abs(gain / unmasked - 1)[:, 20:40].max() > 0.05
+    assert read_view_photograph(cameras, frame)[1] is None

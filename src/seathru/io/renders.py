@@ -126,44 +126,50 @@ def photograph_glare(model_path: str | os.PathLike) -> GlareCorrection | None:
 
 
 def split_glare(photograph: np.ndarray | None, images: Mapping[str, np.ndarray],
-                glare: GlareCorrection | None) -> tuple[np.ndarray | None, dict[str, np.ndarray]]:
-    """A held-out view's photograph without the ``glare`` correction the model was trained
-    with (what its restored photograph starts from), and the model's renders of the view with
-    it put back into the image formation (``rgb``, ``direct``, ``backscatter``: what the camera
-    records, compared with the photograph as it is); both as given without ``glare`` or
+                gain: np.ndarray | None) -> tuple[np.ndarray | None, dict[str, np.ndarray]]:
+    """A held-out view's photograph without the glare correction the model was trained with
+    (what its restored photograph starts from), and the model's renders of the view with it
+    put back into the image formation (``rgb``, ``direct``, ``backscatter``: what the camera
+    records, compared with the photograph as it is); both as given without ``gain`` or
     ``photograph``.
 
     Args:
         photograph: (H, W, 3) linear, at the renders' size, or None.
         images: the inference dict of the view (``seathru.nerf.inference.render_frame``).
-        glare: a ``seathru.radiometry.glare.GlareCorrection`` or None.
+        gain: (H, W) the correction's gain at the renders' size (:func:`read_view_photograph`,
+            resized), or None: no correction.
     """
-    from seathru.radiometry.glare import photograph_gain
-
-    if glare is None or photograph is None:
+    if gain is None or photograph is None:
         return photograph, dict(images)
     photograph = np.asarray(photograph, dtype=np.float64)[..., :3]
-    gain = photograph_gain(photograph, glare, np.isfinite(photograph).all(-1))
-    recorded = {key: (value * gain[..., None] if key in ("rgb", "direct", "backscatter")
-                      else value) for key, value in images.items()}
-    return photograph / gain[..., None], recorded
+    gain = np.asarray(gain, dtype=np.float64)[..., None]
+    recorded = {key: (value * gain if key in ("rgb", "direct", "backscatter") else value)
+                for key, value in images.items()}
+    return photograph / gain, recorded
 
 
-def read_view_image(cameras: CameraSet, frame, glare: GlareCorrection | None = None
-                    ) -> np.ndarray | None:
-    """The camera file's image of ``frame`` (the ground truth of a held-out view), without the
-    ``glare`` correction the model was trained with, read as the train step reads it
-    (``seathru.io.training.read_frame_images``); None, with a warning, when it cannot be read."""
-    from seathru.io.training import read_frame_images
+def read_view_photograph(cameras: CameraSet, frame, glare: GlareCorrection | None = None,
+                         size: tuple[int, int] | None = None
+                         ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The camera file's image of ``frame`` as it is (the ground truth of a held-out view) and
+    the gain (H, W) of the ``glare`` correction the model was trained with, found around the
+    open water on the frame's valid pixels as the train step finds it
+    (``seathru.io.training.glare_gain_of``: its mask file counts); the gain is None without
+    ``glare``, both are None, with a warning, when the image cannot be read. ``size``
+    ``(width, height)``: both area-resampled to it (the renders' size)."""
+    from seathru.io.training import glare_gain_of, read_frame
+    from seathru.radiometry.linearise import resize_area
 
     try:
-        if glare is None:
-            return read_image(cameras.image_path(frame))
-        (image,), _ = read_frame_images(cameras, [frame], glare)
-        return image
+        image, mask = read_frame(cameras, frame)
     except PipelineError as exc:
         log.warning("no ground-truth display copy for %s (%s)", frame.name, exc)
-        return None
+        return None, None
+    gain = None if glare is None else glare_gain_of(image, mask, glare)
+    if size is not None:
+        image = resize_area(image, size)
+        gain = None if gain is None else resize_area(gain, size)
+    return image, gain
 
 
 def write_test_view(root: str | os.PathLike, view: str, images: Mapping[str, np.ndarray],
@@ -228,20 +234,19 @@ def restore_all_photos(render_fn, cameras: CameraSet, root: str | os.PathLike, s
     """Every camera's photograph not in ``done`` (the held-out views, restored as they were
     rendered) restored into ``photos/`` (:func:`write_restored_photo`), one render per view
     (``render_fn(frame, downscale)``), without the ``glare`` correction the model was trained
-    with (:func:`read_view_image`); returns how many were written."""
+    with (:func:`read_view_photograph`, :func:`split_glare`); returns how many were written."""
     from seathru.nerf.inference import timed_renders
-    from seathru.radiometry.linearise import resize_area
 
     frames = sorted((f for f in cameras.frames if f.name not in done), key=lambda f: f.name)
     written = 0
     for frame, images, seconds in timed_renders(render_fn, frames, downscale):
-        photograph = read_view_image(cameras, frame, glare)
+        height, width = images["depth"].shape[:2]
+        photograph, gain = read_view_photograph(cameras, frame, glare, (width, height))
         if photograph is None:
             continue
-        height, width = images["depth"].shape[:2]
-        written += write_restored_photo(root, frame.name,
-                                        resize_area(photograph, (width, height)), images, scale,
-                                        photos, test_view=False)
+        photograph, _ = split_glare(photograph, images, gain)
+        written += write_restored_photo(root, frame.name, photograph, images, scale, photos,
+                                        test_view=False)
         log.info("restored photograph %s in %.2f s", frame.name, seconds)
     log.info("restored %d more photographs into %s/", written, PHOTOS_DIR)
     return written

@@ -40,26 +40,33 @@ def read_frame_images(cameras: CameraSet, frames, glare: GlareCorrection | None 
     (:func:`without_glare`)."""
     images, masks = [], []
     for frame in frames:
-        path = cameras.image_path(frame)
-        image = read_image(path)
-        if image.ndim != 3 or image.shape[2] < 3:
-            raise PipelineError(f"{path}: expected an RGB image, found shape {image.shape}")
-        image = image[..., :3]
-        if image.shape[:2] != (frame.height, frame.width):
-            raise PipelineError(f"{path}: image is {image.shape[1]}x{image.shape[0]} but "
-                                f"{cameras.root}/cameras.json says {frame.width}x{frame.height}")
-        mask = None
-        mask_path = cameras.mask_path(frame)
-        if mask_path is not None:
-            mask = read_mask(mask_path)
-            if mask.ndim == 3:
-                mask = mask[..., 0]
-            if mask.shape != image.shape[:2]:
-                raise PipelineError(f"{mask_path}: mask is {mask.shape[1]}x{mask.shape[0]}, its "
-                                    f"image {image.shape[1]}x{image.shape[0]}")
+        image, mask = read_frame(cameras, frame)
         images.append(image if glare is None else without_glare(image, mask, glare))
         masks.append(mask)
     return images, masks
+
+
+def read_frame(cameras: CameraSet, frame) -> tuple[np.ndarray, np.ndarray | None]:
+    """One frame's linear RGB image (H, W, 3) and validity mask (H, W) or None, checked
+    against the camera file's size."""
+    path = cameras.image_path(frame)
+    image = read_image(path)
+    if image.ndim != 3 or image.shape[2] < 3:
+        raise PipelineError(f"{path}: expected an RGB image, found shape {image.shape}")
+    image = image[..., :3]
+    if image.shape[:2] != (frame.height, frame.width):
+        raise PipelineError(f"{path}: image is {image.shape[1]}x{image.shape[0]} but "
+                            f"{cameras.root}/cameras.json says {frame.width}x{frame.height}")
+    mask = None
+    mask_path = cameras.mask_path(frame)
+    if mask_path is not None:
+        mask = read_mask(mask_path)
+        if mask.ndim == 3:
+            mask = mask[..., 0]
+        if mask.shape != image.shape[:2]:
+            raise PipelineError(f"{mask_path}: mask is {mask.shape[1]}x{mask.shape[0]}, its "
+                                f"image {image.shape[1]}x{image.shape[0]}")
+    return image, mask
 
 
 @dataclass
@@ -92,14 +99,21 @@ def read_training_inputs(cameras: CameraSet, train_frames, test_frames,
 
 def without_glare(image: np.ndarray, mask: np.ndarray | None,
                   glare: GlareCorrection) -> np.ndarray:
-    """``image`` (H, W, 3) divided by the ``glare`` correction's gain around the open water it
-    shows on its valid pixels (``mask`` (H, W) or None, and finite values;
-    ``seathru.radiometry.glare.photograph_gain``), in the image's own dtype."""
+    """``image`` (H, W, 3) divided by the ``glare`` correction's gain (:func:`glare_gain_of`),
+    in the image's own dtype."""
+    gain = glare_gain_of(image, mask, glare)
+    return (image / gain[..., None]).astype(image.dtype, copy=False)
+
+
+def glare_gain_of(image: np.ndarray, mask: np.ndarray | None,
+                  glare: GlareCorrection) -> np.ndarray:
+    """The ``glare`` correction's gain (H, W) around the open water ``image`` (H, W, 3) shows
+    on its valid pixels: finite, and inside ``mask`` (H, W) where there is one
+    (``seathru.radiometry.glare.photograph_gain``)."""
     valid = np.isfinite(image).all(-1)
     if mask is not None:
         valid &= mask > 0
-    gain = photograph_gain(image, glare, valid)
-    return (image / gain[..., None]).astype(image.dtype, copy=False)
+    return photograph_gain(image, glare, valid)
 
 
 def write_log_csv(path: Path, rows: list[dict]) -> None:

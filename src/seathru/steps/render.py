@@ -26,7 +26,6 @@ from seathru.io import renders
 from seathru.io.atomic import atomic_dir
 from seathru.io.cameras import CameraSet, read_cameras
 from seathru.io.images import read_image
-from seathru.radiometry.linearise import resize_area
 from seathru.radiometry.restore import PhotoRestoration
 from seathru.settings import section, setting
 
@@ -127,9 +126,8 @@ def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Map
                 scale = display.exposure_scale([images["rgb"]], percentile, target)
                 exposure_source = f"render of {frame.name}"
             height, width = images["depth"].shape[:2]
-            truth = renders.read_view_image(cameras, frame)
-            truth = None if truth is None else resize_area(truth, (width, height))
-            photograph, recorded = renders.split_glare(truth, images, glare)
+            truth, gain = renders.read_view_photograph(cameras, frame, glare, (width, height))
+            photograph, recorded = renders.split_glare(truth, images, gain)
             shown = {name: display.to_display(recorded[key], scale)
                      for name, key in renders.RENDER_KEYS.items()}
             if truth is not None:
