@@ -9,12 +9,15 @@ truth when given), the arms interleaved within each repeat, one run at a time. U
         --arm far3="--sampler.far-factor 3" --repeats 2 --out benchmarks/results/far_factor.md
 
 ``--summarise-only`` writes the table from the runs already in ``--work`` (``<arm>_<repeat>``).
+Every run uses a copy of ``src/`` taken when the benchmark starts (``--work``/``src``), so the
+working tree may change while it runs.
 """
 
 from __future__ import annotations
 
 import argparse
 import shlex
+import shutil
 import time
 from pathlib import Path
 
@@ -41,6 +44,10 @@ def main() -> None:
         name, _, flags = arm.partition("=")
         arms[name] = tuple(shlex.split(flags))
     load_before = load_average()
+    source = args.work / "src"
+    if not args.summarise_only:
+        shutil.rmtree(source, ignore_errors=True)
+        shutil.copytree(REPO / "src", source, ignore=shutil.ignore_patterns("__pycache__"))
     rows = []
     for repeat in range(args.repeats):
         for name, flags in arms.items():
@@ -49,7 +56,7 @@ def main() -> None:
                 row = read_row(run, args.minutes, args.work)
             else:
                 args.work.mkdir(parents=True, exist_ok=True)
-                row = run_once(run, REPO / "src", args.minutes, args.cameras, args.truth,
+                row = run_once(run, source, args.minutes, args.cameras, args.truth,
                                args.work, args.threads, flags)
             rows.append((name, row))
     lines = ["# Training settings side by side (`benchmarks/bench_train_args.py`)", "",
