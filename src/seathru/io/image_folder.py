@@ -19,6 +19,7 @@ from typing import Any, TypedDict
 from seathru.errors import PipelineError
 from seathru.io.dataset_readers import layout_images
 from seathru.io.raw import KINDS, detect_kind
+from seathru.io.video import VideoFrames, is_video
 
 
 class RejectedFile(TypedDict):
@@ -98,6 +99,13 @@ def every_image_file(folder: Path) -> list[tuple[Path, str]]:
              if by_path else path.stem) for path in files]
 
 
+def folder_files(folder: Path, every_folder: bool = False) -> list[tuple[Path, str]]:
+    """Every file of ``folder`` as ``(path, stem)``, or with ``every_folder`` of its subfolders
+    too (:func:`every_image_file`)."""
+    return every_image_file(folder) if every_folder else [
+        (path, path.stem) for path in _visible_files(folder)]
+
+
 def select_files(folder: Path, kind: str, every_folder: bool = False
                  ) -> tuple[list[tuple[Path, str, str]], list[RejectedFile], dict[str, Any]]:
     """Images of ``folder`` (with ``every_folder``, of its subfolders too:
@@ -107,8 +115,7 @@ def select_files(folder: Path, kind: str, every_folder: bool = False
     Raises:
         PipelineError: no image file found (naming the subfolders that hold some).
     """
-    files = every_image_file(folder) if every_folder else [
-        (path, path.stem) for path in _visible_files(folder)]
+    files = folder_files(folder, every_folder)
     if not any(detect_kind(path) for path, _ in files):
         with_images = image_subfolders(folder)
         listed = ", ".join(f"{name} ({count})" for name, count in with_images[:8])
@@ -214,7 +221,9 @@ class InputImages:
     """What the ingest step decodes: ``selected`` ``(path, name, kind)``, ``rejected`` files,
     the ``detection`` dict (:func:`select_paths`), the ``folder`` read, the ``subdir`` (image
     folder) used, and for a posed layout its ``layout`` record, ``reason`` and the ``masks`` its
-    frames name (view name -> file: nerfstudio ``mask_path``)."""
+    frames name (view name -> file: nerfstudio ``mask_path``). A folder of videos and no
+    photographs has ``videos`` ``(path, name)`` and nothing ``selected`` until the ingest step
+    stages their frames (``seathru.io.video``, recorded in ``video``)."""
 
     folder: Path
     subdir: str | None
@@ -224,6 +233,15 @@ class InputImages:
     layout: dict | None = None
     reason: str = ""
     masks: dict[str, str] = field(default_factory=dict)
+    videos: list[tuple[Path, str]] = field(default_factory=list)
+    video: VideoFrames | None = None
+
+    def with_video(self, video: VideoFrames | None) -> "InputImages":
+        """These inputs with the frames staged from their ``videos`` selected (as sRGB)."""
+        if video is not None:
+            self.selected = [(path, name, "srgb") for path, name in video.files]
+            self.video = video
+        return self
 
 
 def find_inputs(given: Path, subdir: str | None, layout: str | None, images: str,
@@ -234,14 +252,38 @@ def find_inputs(given: Path, subdir: str | None, layout: str | None, images: str
     ``images``; else ``given``), and with ``images`` :data:`EVERY_FOLDER` those of its
     subfolders too.
     ``kind`` ``auto`` becomes ``linear`` for a layout folder documented as linear (images_wb).
+    A folder of videos and no photographs gives their frames (:class:`InputImages` ``videos``).
     """
     if layout is None:
         every_folder = images == EVERY_FOLDER
         named = subdir or (None if images in ("auto", EVERY_FOLDER) else images)
         folder = resolve_input(Path(given), named)
-        return InputImages(folder, named, *select_files(folder, kind, every_folder))
+        files = folder_files(folder, every_folder)
+        videos = [(path, name) for path, name in files if is_video(path)]
+        if videos and not any(detect_kind(path) for path, _ in files):
+            return _video_inputs(folder, named, files, videos, kind)
+        found = InputImages(folder, named, *select_files(folder, kind, every_folder))
+        found.detection["ignored"] = [n for n in found.detection["ignored"]
+                                      if not is_video(Path(n))]
+        found.rejected += [{"file": path.name, "reason": (
+            "a video beside photographs: the photographs are used (give the video a dataset "
+            "row of its own to take frames from it)")} for path, _ in videos]
+        return found
     found = layout_images(layout, Path(given), images)
     kind = found.kind if found.kind and kind == "auto" else kind
     return InputImages(found.root, found.folder, *select_paths(found.files, kind),
                        layout=found.record(), reason=found.reason,
                        masks={name: str(path) for name, path in found.masks.items()})
+
+
+def _video_inputs(folder: Path, named: str | None, files: list[tuple[Path, str]],
+                  videos: list[tuple[Path, str]], kind: str) -> InputImages:
+    if kind not in ("auto", "srgb"):
+        raise PipelineError(f"{folder}: holds videos, whose frames are 8-bit sRGB, but "
+                            f"ingest.kind is {kind}; set ingest.kind to auto or srgb")
+    ignored = [path.name for path, _ in files if not is_video(path)]
+    detection = {"kind": "srgb", "requested": kind, "counts": {"video": len(videos)},
+                 "note": f"{len(videos)} video(s), no photographs: the sharpest frame of every "
+                         "interval is taken (ingest.video_interval, ingest.video_max_frames)",
+                 "ignored": ignored}
+    return InputImages(folder, named, [], [], detection, videos=videos)

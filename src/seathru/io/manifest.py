@@ -16,7 +16,7 @@ steps (``poses``) find the images.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, NotRequired, Sequence, TypedDict
+from typing import Any, Sequence, TypedDict
 
 import numpy as np
 
@@ -26,6 +26,7 @@ from seathru.io.contract import check_contract
 from seathru.io.jsonfile import read_json
 from seathru.io.image_folder import RejectedFile
 from seathru.io.images import list_images
+from seathru.io.video import VideoFrameRecord, VideoFrames, VideoRecord
 from seathru.io.warnings import StepWarning, step_warning
 from seathru.radiometry.linearise import MATCHING_TARGET_MEDIAN
 
@@ -46,7 +47,11 @@ class DownscaledImage(TypedDict):
     height: int
 
 
-class ManifestImage(TypedDict):
+class _ManifestImageOptional(TypedDict, total=False):
+    video_frame: VideoFrameRecord  # a video's frame (source is the video); absent otherwise
+
+
+class ManifestImage(_ManifestImageOptional):
     name: str                   # file stem, the key of every later stage
     source: str                 # file name in the input folder
     source_path: str            # resolved path of the input file
@@ -79,7 +84,11 @@ class MissingFrame(TypedDict):
     file: str                   # the file the dataset lists
 
 
-class LayoutRecord(TypedDict):
+class _LayoutRecordOptional(TypedDict, total=False):
+    masks: int                  # views with a mask of the dataset's own (nerfstudio mask_path)
+
+
+class LayoutRecord(_LayoutRecordOptional):
     """How the images of a posed dataset were found (``seathru.io.dataset_readers``)."""
 
     layout: str                 # llff | colmap | nerfstudio
@@ -89,11 +98,11 @@ class LayoutRecord(TypedDict):
     kind: str | None            # linear where the layout says so (images_wb), else None
     files: int                  # image files found
     missing: list[MissingFrame]  # listed by the dataset, not there (skipped)
-    masks: NotRequired[int]     # views with a mask of the dataset's own (nerfstudio mask_path)
 
 
 class _ManifestInputOptional(TypedDict, total=False):
     layout: LayoutRecord | None  # posed layouts (None otherwise; absent in older manifests)
+    videos: list[VideoRecord]   # a folder of videos: one record each (absent otherwise)
 
 
 class ManifestInput(_ManifestInputOptional):
@@ -177,7 +186,8 @@ def build_manifest(settings: Any, *, folder: Path, given: Path, subdir: str | No
                    detection: dict[str, Any], decoded: Sequence[Any], finished: Sequence[Any],
                    transform: Any, rejected: list[RejectedFile], downscale: Sequence[int],
                    stats_pixels_per_image: int, workers: int,
-                   layout: LayoutRecord | None = None) -> IngestManifest:
+                   layout: LayoutRecord | None = None,
+                   video: VideoFrames | None = None) -> IngestManifest:
     """The manifest of one ingest run.
 
     Args:
@@ -188,6 +198,7 @@ def build_manifest(settings: Any, *, folder: Path, given: Path, subdir: str | No
         transform: the ``seathru.radiometry.dataset_transform.DatasetTransform``.
         rejected, downscale, stats_pixels_per_image, workers: as used.
         layout: how a posed dataset's images were found (``LayoutImages.record()``).
+        video: the frames staged from a folder of videos (``seathru.io.video``), or None.
     """
     values = transform.exposure_values
     images: list[ManifestImage] = []
@@ -213,6 +224,10 @@ def build_manifest(settings: Any, *, folder: Path, given: Path, subdir: str | No
             "decoder": d.metadata,
             "warnings": d.warnings,
         })
+        if video is not None and d.name in video.frames:
+            frame = video.frames[d.name]
+            images[-1].update(source=frame["video"], source_path=video.sources[d.name],
+                              video_frame=frame)
     norm = transform.exposure
     exposure: ExposureSummary = (
         {"normalised": True, "reference": norm.reference, "fields_used": list(norm.fields_used),
@@ -223,7 +238,8 @@ def build_manifest(settings: Any, *, folder: Path, given: Path, subdir: str | No
     return {
         "format": FORMAT,
         "input": {"folder": str(folder.resolve()), "given": str(given), "subdir": subdir,
-                  **detection, "layout": layout},
+                  **detection, "layout": layout,
+                  **({"videos": video.videos} if video is not None else {})},
         "settings": {
             "kind": settings.kind, "colour": settings.colour, "wb": settings.wb,
             "wb_percentile": settings.wb_percentile, "demosaic": settings.demosaic,

@@ -2,32 +2,20 @@
 
 Reads one folder (``--input``, optionally ``--subdir`` or ``--images``), or with ``--layout
 llff|colmap|nerfstudio`` the images a posed dataset holds in its own layout, missing ones skipped
-(``seathru.io.dataset_readers.layout_images``). Writes, in ``--out`` (atomically):
+(``seathru.io.dataset_readers.layout_images``); a folder of videos gives the sharpest frame of
+every ``--video-interval`` seconds (``seathru.io.video``). Writes, in ``--out`` (atomically), the
+linear images, their masks, 8-bit copies for matching, ``manifest.json`` (the layout and format:
+``seathru.io.manifest``) and ``warnings.json`` (rejected files, missing frames, clipped images).
 
-  linear/<stem>.tiff      float32 linear RGB after exposure normalisation and white balance
-  linear_<N>/<stem>.tiff  the same, area-averaged down by N (LLFF images_N), per --downscale
-  masks/<stem>.png        validity mask (255 valid; clipped pixels dilated), masks_<N>/ likewise
-  matching/<stem>.png     8-bit sRGB-encoded copy for feature matching, one global exposure
-  manifest.json           settings, dataset gains, per-image metadata, rejected files
-  warnings.json           rejected files, missing frames, clipped images (seathru.io.warnings)
+Kinds (``raw``: demosaiced only, in the camera's raw colour space as SeaThru-NeRF; ``linear``;
+``srgb``; ``auto``: RAW wins over linear over sRGB): ``seathru.io.image_folder``. Exposure
+(k_i = median(E) / E_i, E = t * ISO / N^2 from EXIF) and white balance (--wb, percentile: the
+SeaThru-NeRF recipe): ``seathru.radiometry.dataset_transform``. Masks: clipped pixels
+(``seathru.radiometry.linearise``) grown by --mask-dilation, or a layout's own.
 
-Kinds: ``raw`` (anything LibRaw decodes, demosaiced only, in the camera's raw colour space by
-default, as SeaThru-NeRF), ``linear`` (16-bit/float PNG or TIFF as stored; also the layouts'
-images_wb), ``srgb`` (8-bit JPEG/PNG/TIFF, inverse sRGB), ``auto`` (by extension and bit depth;
-of mixed kinds raw wins over linear over srgb, the others are rejected).
-
-Exposure and white balance (``seathru.radiometry.dataset_transform``): every image is scaled by
-k_i = median(E) / E_i, E = t * ISO / N^2 from EXIF (missing fields: k = 1, with a warning);
---wb none, camera (dataset median of the as-shot gains) or percentile (SeaThru-NeRF's recipe:
-each channel / its 99.8th percentile, from at most --stats-pixels pixels per image).
-
-Masks: a pixel is invalid where clipped (RAW: a CFA sample >= --saturation-threshold x white
-level, or 0; encoded: the top code in a channel, or 0 in all: one 0 is open water's red), grown
-by --mask-dilation pixels, or 0 in its nerfstudio mask_path; resized: valid if all under it are.
-
-Unusable files (unsupported, stripped, truncated, constant output) are rejected with a reason and
-the rest continue; the step fails if fewer than --min-images remain. Images are decoded in
---workers spawned processes (LibRaw uses OpenMP, which is not fork-safe), one file per task.
+Unusable files are rejected with a reason and the rest continue; the step fails if fewer than
+--min-images remain. Images are decoded in --workers spawned processes (LibRaw uses OpenMP,
+which is not fork-safe), one file per task.
 """
 
 from __future__ import annotations
@@ -45,9 +33,10 @@ from seathru.io.atomic import atomic_dir
 from seathru.io.decode_pool import (CRASHED, DecodeTask, FinishTask, WorkerPool, decode_all,
                                     finish_one)
 from seathru.io.dataset_readers import LAYOUTS
-from seathru.io.image_folder import find_inputs
+from seathru.io.image_folder import InputImages, find_inputs
 from seathru.io.manifest import build_manifest, ingest_warnings, write_manifest
 from seathru.io.raw import Demosaic, RawSettings
+from seathru.io.video import staged_video_frames
 from seathru.io.warnings import write_warnings
 from seathru.radiometry.dataset_transform import dataset_transform
 from seathru.settings import setting
@@ -91,6 +80,10 @@ class Settings:
                      "DCIM/100GOPRO, ...) or all: every image under the path, subfolders too")
     warn_clipped_share: float = setting(
         0.1, help="warn about images with more than this share of clipped pixels")
+    video_interval: float = setting(
+        1.0, help="videos: one frame per this many seconds, the sharpest of each interval")
+    video_max_frames: int = setting(
+        200, help="videos: at most this many frames in all (the interval widens to fit)")
 
     def validate(self) -> None:
         if not 0.0 < self.wb_percentile <= 100.0:
@@ -106,6 +99,8 @@ class Settings:
                 not 0.0 <= self.warn_clipped_share <= 1.0:
             raise ValueError("--max-size / --matching-max-size must be >= 0, --stats-pixels >= 1,"
                              " --warn-clipped-share in [0, 1]")
+        if not self.video_interval > 0.0 or self.video_max_frames < 1:
+            raise ValueError("--video-interval must be > 0, --video-max-frames >= 1")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -125,6 +120,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> None:
     cfg: Settings = settings.from_namespace(Settings, args)
     found = find_inputs(Path(args.input), args.subdir, args.layout, cfg.images, cfg.kind)
+    with staged_video_frames(found.videos, Path(args.out), cfg.video_interval,
+                             cfg.video_max_frames) as video:
+        _decode(args, cfg, found.with_video(video))
+
+
+def _decode(args: argparse.Namespace, cfg: Settings, found: InputImages) -> None:
     folder, selected, rejected = found.folder, found.selected, found.rejected
     workers = max(1, min(args.workers or min(os.cpu_count() or 1, 8), len(selected)))
     sample_pixels = min(cfg.stats_pixels, max(4096, STATS_TOTAL_PIXELS // max(1, len(selected))))
@@ -132,7 +133,6 @@ def run(args: argparse.Namespace) -> None:
     downscale = tuple(sorted(set(cfg.downscale) - {1}))
     LOG.info("ingest %s: %s%s; %d images, %d workers", folder, found.detection["note"],
              f"; {found.reason}" if found.reason else "", len(selected), workers)
-
     out = Path(args.out)
     with atomic_dir(out) as work, WorkerPool(workers) as pool:
         decoded, failed = decode_all(pool, masks=found.masks, tasks=[
@@ -163,7 +163,7 @@ def run(args: argparse.Namespace) -> None:
             cfg, folder=folder, given=args.input, subdir=found.subdir, detection=found.detection,
             decoded=decoded, finished=finished, transform=transform, rejected=rejected,
             downscale=downscale, stats_pixels_per_image=sample_pixels, workers=workers,
-            layout=found.layout)
+            layout=found.layout, video=found.video)
         write_manifest(work / "manifest.json", manifest)
         write_warnings(work / "warnings.json", ingest_warnings(manifest, cfg.warn_clipped_share),
                        LOG)
