@@ -242,6 +242,43 @@ def test_invalid_raw_reasons():
     assert "constant" in linearise.invalid_image_reason(np.zeros((4, 4, 3)))
 
 
+def _mosaic_dng(path: Path, scene: np.ndarray) -> None:
+    """``scene`` (H, W, 3) in [0, 1] sampled on an RGGB mosaic, noise-free, as a DNG."""
+    from seathru.io.dng import write_dng
+
+    height, width = scene.shape[:2]
+    channel = np.full((height, width), 1)
+    channel[0::2, 0::2], channel[1::2, 1::2] = 0, 2
+    mosaic = np.take_along_axis(scene, channel[..., None], -1)[..., 0]
+    write_dng(path, (1024 + mosaic * (16383 - 1024)).round().astype(np.uint16),
+              black_level=1024, white_level=16383, exposure_time_s=0.01, iso=100, f_number=4.0)
+
+
+def test_linear_demosaic_keeps_each_channel_to_its_own_samples_and_ahd_does_not(tmp_path):
+    """Underwater the colour changes with range: blue fades while green stays. Demosaics that
+    interpolate the colour difference (AHD, the default, and PPG, DCB) copy green's texture into
+    red and blue; LINEAR interpolates every channel from its own samples, so a flat blue stays
+    flat beside textured green. docs/water.md ("The demosaic") measures what each costs the
+    water; ingest.demosaic's help says which to choose."""
+    rng = np.random.default_rng(0)
+    green = np.kron(rng.uniform(0.1, 0.6, (12, 16)), np.ones((4, 4)))
+    scene = np.stack([np.full_like(green, 0.3), green, np.full_like(green, 0.2)], -1)
+    _mosaic_dng(tmp_path / "flat_blue.dng", scene)
+    inner = (slice(4, -4), slice(4, -4))
+
+    def relative_spread(demosaic: str) -> np.ndarray:
+        image = rawio.decode_raw(tmp_path / "flat_blue.dng",
+                                 rawio.RawSettings(demosaic=demosaic)).image[inner]
+        return image.std(axis=(0, 1)) / image.mean(axis=(0, 1))
+
+    linear = relative_spread("LINEAR")
+    assert linear[0] < 1e-3 and linear[2] < 1e-3
+    assert linear[1] > 0.3    # green keeps its texture
+    for leaky in ("AHD", "PPG", "DCB"):
+        assert relative_spread(leaky)[2] > 0.1, leaky
+    assert ingest.Settings().demosaic == rawio.RawSettings().demosaic
+
+
 # --- encoded inputs -------------------------------------------------------------------------
 
 def _srgb_decode_reference(code: np.ndarray) -> np.ndarray:

@@ -10,7 +10,10 @@ demosaiced sensor signal ``(raw - black_c) / (white - black_c)`` per CFA channel
   camera raw colour space, linear gamma ``(1, 1)``, 16-bit output. White balance and colour
   conversion are done by ingest afterwards, in float, without clipping;
 - LibRaw's demosaic keeps the native sample of every CFA site (all its open-source algorithms:
-  checked on the real DNG in tests/test_ingest.py); ``half_size`` bins each 2x2 block instead;
+  checked on the real DNG in tests/test_ingest.py); ``half_size`` bins each 2x2 block instead.
+  The default, LINEAR, interpolates each channel from its own samples: the colour-difference
+  algorithms (AHD, PPG, DCB, AAHD) copy green's texture into red and blue, and underwater, where
+  one channel fades with range faster than green, that biases its water (docs/water.md);
 - orientation: decoded with ``user_flip=0`` and rotated with ``seathru.radiometry.linearise.orient``
   using the file's flip (``raw.sizes.flip`` read before postprocessing, which is what rawpy's
   default ``user_flip=None`` applies), so the clipping mask, computed on the raw grid, turns with
@@ -149,7 +152,7 @@ def read_exif(path: str | Path) -> tuple[ExifExposure, set[str]]:
 
 @dataclass(frozen=True)
 class RawSettings:
-    demosaic: str = "AHD"
+    demosaic: str = "LINEAR"
     half_size: bool = False
     saturation_threshold: float = 0.98
 

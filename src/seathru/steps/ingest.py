@@ -7,15 +7,14 @@ every ``--video-interval`` seconds (``seathru.io.video``). Writes, in ``--out`` 
 linear images, their masks, 8-bit copies for matching, ``manifest.json`` (the layout and format:
 ``seathru.io.manifest``) and ``warnings.json`` (rejected files, missing frames, clipped images).
 
-Kinds (``raw``: demosaiced only, in the camera's raw colour space as SeaThru-NeRF; ``linear``;
+Kinds (``raw``: demosaiced only (LINEAR), in the camera's raw colour space; ``linear``;
 ``srgb``; ``auto``: RAW wins over linear over sRGB): ``seathru.io.image_folder``. Exposure
 (k_i = median(E) / E_i, E = t * ISO / N^2 from EXIF) and white balance (--wb, percentile: the
 SeaThru-NeRF recipe): ``seathru.radiometry.dataset_transform``. Masks: clipped pixels
 (``seathru.radiometry.linearise``) grown by --mask-dilation, or a layout's own.
 
-Unusable files are rejected with a reason and the rest continue; the step fails if fewer than
---min-images remain. Images are decoded in --workers spawned processes (LibRaw uses OpenMP,
-which is not fork-safe), one file per task.
+Unusable files are rejected with a reason, the rest go on (fewer than --min-images: the step
+fails); decoded in --workers spawned processes (LibRaw's OpenMP is not fork-safe).
 """
 
 from __future__ import annotations
@@ -59,7 +58,8 @@ class Settings:
         "percentile", help="white balance (percentile: the SeaThru-NeRF recipe)")
     wb_percentile: float = setting(
         99.8, help="percentile each channel is divided by for --wb percentile")
-    demosaic: Demosaic = setting("AHD", help="LibRaw demosaic algorithm")
+    demosaic: Demosaic = setting("LINEAR", help="LibRaw demosaic; LINEAR keeps each channel to its "
+                                 "own samples, AHD etc. copy green into red and blue (docs/water.md)")
     half_size: bool = setting(
         False, help="RAW: bin each 2x2 CFA block instead of demosaicing (half resolution)")
     exposure_normalise: bool = setting(
