@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 
 from seathru.errors import PipelineError
 from seathru.io import video
+from seathru.io.stored_views import read_stored_codes, read_stored_views
 from seathru.steps import ingest
 
 FPS = 10.0
@@ -106,6 +107,16 @@ def test_a_folder_of_videos_is_ingested_as_their_frames(tmp_path):
     assert manifest["input"]["ignored"] == ["notes.txt"]
     assert all((out / "linear" / f"{name}.tiff").is_file() for name in names)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".ingest.video-")]
+    # the evaluation compares renders with the stored image: here the video's own frame
+    view = read_stored_views(out)["GX010001_000012"]
+    assert view.video_frame == 12 and view.encoding == "srgb"
+    codes = read_stored_codes(view)
+    expected = cv2.cvtColor(video.read_video_frame(folder / "GX010001.avi", 12), cv2.COLOR_BGR2RGB)
+    assert codes.dtype == np.uint8 and np.array_equal(codes, expected)
+    assert not np.array_equal(codes, cv2.cvtColor(video.read_video_frame(
+        folder / "GX010001.avi", 11), cv2.COLOR_BGR2RGB))
+    with pytest.raises(PipelineError, match="no frame 30"):
+        video.read_video_frame(folder / "GX010001.avi", 30)
 
 
 def test_a_video_beside_photographs_is_rejected_with_the_reason(tmp_path):

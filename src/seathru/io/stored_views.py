@@ -34,6 +34,7 @@ from seathru.io.colmap import (Interpolation, Undistortion, camera_at_size, make
 from seathru.io.images import read_image
 from seathru.io.manifest import read_manifest
 from seathru.io.pose_report import read_pose_report
+from seathru.io.video import read_video_frame
 from seathru.radiometry.linearise import orient, resize_area
 
 #: Relative tolerance on intrinsics when matching a frame to a source camera.
@@ -47,7 +48,8 @@ class StoredView:
     ``path``: the stored file (for RAW sources the ingest's linear TIFF); ``encoding``: ``srgb``
     or ``linear``; ``gains`` ``(3,)`` and ``exposure_factor``: what ingest multiplied by;
     ``flip``: the orientation ingest applied (LibRaw flip code); ``size``: ``(width, height)``
-    after orientation; ``file_name``: the stored file's name (the protocol sorts these).
+    after orientation; ``file_name``: the stored file's name (the protocol sorts these);
+    ``video_frame``: for a frame of a video (``path``), its index in it, else None.
     """
 
     name: str
@@ -59,6 +61,7 @@ class StoredView:
     exposure_factor: float
     flip: int
     size: tuple[int, int]
+    video_frame: int | None = None
 
 
 def ingest_folder_of(cameras: CameraSet) -> Path:
@@ -91,9 +94,11 @@ def read_stored_views(ingest: Path) -> dict[str, StoredView]:
             path, encoding, view_gains = Path(image["source_path"]), image["kind"], gains
             factor, flip = float(image["exposure_factor"]), int(image["decoder"].get("flip", 0))
             size = (int(image["source_size"][0]), int(image["source_size"][1]))
+        video_frame = image.get("video_frame")
         views[image["name"]] = StoredView(
             name=image["name"], file_name=image["source"], path=path, kind=image["kind"],
-            encoding=encoding, gains=view_gains, exposure_factor=factor, flip=flip, size=size)
+            encoding=encoding, gains=view_gains, exposure_factor=factor, flip=flip, size=size,
+            video_frame=None if video_frame is None else int(video_frame["index"]))
     return views
 
 
@@ -105,7 +110,9 @@ def read_stored_codes(view: StoredView) -> np.ndarray:
     if not view.path.is_file():
         raise PipelineError(f"{view.path}: stored image not found; the dataset folder changed "
                             "since ingest")
-    if view.path.suffix.lower() in (".tif", ".tiff"):
+    if view.video_frame is not None:
+        codes = cv2.cvtColor(read_video_frame(view.path, view.video_frame), cv2.COLOR_BGR2RGB)
+    elif view.path.suffix.lower() in (".tif", ".tiff"):
         codes = tifffile.imread(view.path)
         if codes.ndim == 3 and codes.shape[0] in (3, 4) and codes.shape[2] not in (3, 4):
             codes = np.moveaxis(codes, 0, -1)  # planar-separate TIFF

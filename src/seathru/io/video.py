@@ -100,6 +100,19 @@ def _frames(path: Path) -> Iterator[np.ndarray]:
         capture.release()
 
 
+def read_video_frame(path: Path, index: int) -> np.ndarray:
+    """Frame ``index`` (from 0) of the video at ``path``, (H, W, 3) BGR uint8, decoded in order
+    (seeking by frame number is not exact in every container).
+
+    Raises:
+        PipelineError: the video cannot be opened or is shorter than ``index + 1`` frames.
+    """
+    for number, frame in enumerate(_frames(Path(path))):
+        if number == index:
+            return frame
+    raise PipelineError(f"{path}: has no frame {index}; the video changed since ingest")
+
+
 def _frame_rate(path: Path) -> float:
     capture = cv2.VideoCapture(str(path))
     try:
