@@ -110,6 +110,7 @@ def test_a_folder_of_videos_is_ingested_as_their_frames(tmp_path):
     # the evaluation compares renders with the stored image: here the video's own frame
     view = read_stored_views(out)["GX010001_000012"]
     assert view.video_frame == 12 and view.encoding == "srgb"
+    assert view.file_name == "GX010001_000012"   # the protocol sorts frames by it
     codes = read_stored_codes(view)
     expected = cv2.cvtColor(video.read_video_frame(folder / "GX010001.avi", 12), cv2.COLOR_BGR2RGB)
     assert codes.dtype == np.uint8 and np.array_equal(codes, expected)

@@ -48,7 +48,8 @@ class StoredView:
     ``path``: the stored file (for RAW sources the ingest's linear TIFF); ``encoding``: ``srgb``
     or ``linear``; ``gains`` ``(3,)`` and ``exposure_factor``: what ingest multiplied by;
     ``flip``: the orientation ingest applied (LibRaw flip code); ``size``: ``(width, height)``
-    after orientation; ``file_name``: the stored file's name (the protocol sorts these);
+    after orientation; ``file_name``: the stored file's name (the protocol sorts these; a
+    video's frame: its name);
     ``video_frame``: for a frame of a video (``path``), its index in it, else None.
     """
 
@@ -95,8 +96,9 @@ def read_stored_views(ingest: Path) -> dict[str, StoredView]:
             factor, flip = float(image["exposure_factor"]), int(image["decoder"].get("flip", 0))
             size = (int(image["source_size"][0]), int(image["source_size"][1]))
         video_frame = image.get("video_frame")
-        views[image["name"]] = StoredView(
-            name=image["name"], file_name=image["source"], path=path, kind=image["kind"],
+        views[image["name"]] = StoredView(   # a video's frames are named in time order
+            name=image["name"], file_name=image["source"] if video_frame is None else
+            image["name"], path=path, kind=image["kind"],
             encoding=encoding, gains=view_gains, exposure_factor=factor, flip=flip, size=size,
             video_frame=None if video_frame is None else int(video_frame["index"]))
     return views
