@@ -113,13 +113,18 @@ def read_video_frame(path: Path, index: int) -> np.ndarray:
     raise PipelineError(f"{path}: has no frame {index}; the video changed since ingest")
 
 
-def _frame_rate(path: Path) -> float:
+def _property(path: Path, which: int) -> float:
     capture = cv2.VideoCapture(str(path))
     try:
-        fps = float(capture.get(cv2.CAP_PROP_FPS) or 0.0)
+        value = float(capture.get(which) or 0.0)
     finally:
         capture.release()
-    return fps if math.isfinite(fps) and fps > 0 else 30.0
+    return value if math.isfinite(value) else 0.0
+
+
+def _frame_rate(path: Path) -> float:
+    fps = _property(path, cv2.CAP_PROP_FPS)
+    return fps if fps > 0 else 30.0
 
 
 def sharpest_per_interval(scores: np.ndarray, window: int) -> list[int]:
@@ -162,8 +167,7 @@ def stage_frames(videos: list[tuple[Path, str]], staging: Path, interval_s: floa
     """Write the chosen frames of ``videos`` (``(path, name)``, name = the stem the frames are
     named after) into ``staging`` as 8-bit PNGs; ``max_frames`` is shared between the videos in
     proportion to their length."""
-    lengths = [cv2.VideoCapture(str(path)).get(cv2.CAP_PROP_FRAME_COUNT) or 1.0
-               for path, _ in videos]
+    lengths = [max(1.0, _property(path, cv2.CAP_PROP_FRAME_COUNT)) for path, _ in videos]
     files, frames, sources, records = [], {}, {}, []
     for (path, stem), length in zip(videos, lengths):
         share = max(1, int(max_frames * length / max(sum(lengths), 1.0)))
