@@ -3,8 +3,6 @@ through the ingest step."""
 
 from __future__ import annotations
 
-import argparse
-import json
 from pathlib import Path
 
 import cv2
@@ -16,7 +14,7 @@ from hypothesis import strategies as st
 from seathru.errors import PipelineError
 from seathru.io import video
 from seathru.io.stored_views import read_stored_codes, read_stored_views
-from seathru.steps import ingest
+from tests.test_ingest import run_ingest
 
 FPS = 10.0
 SIZE = (64, 48)   # width, height
@@ -37,14 +35,6 @@ def _write_video(path: Path, sharp: set[int], frames: int = 30) -> None:
     for index in range(frames):
         writer.write(texture if index in sharp else blurred)
     writer.release()
-
-
-def run_ingest(*argv) -> dict:
-    parser = argparse.ArgumentParser()
-    ingest.add_arguments(parser)
-    args = parser.parse_args([str(a) for a in argv])
-    ingest.run(args)
-    return json.loads((Path(args.out) / "manifest.json").read_text())
 
 
 @settings(max_examples=100, deadline=None)
