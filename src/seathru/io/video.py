@@ -174,6 +174,8 @@ def stage_frames(videos: list[tuple[Path, str]], staging: Path, interval_s: floa
         indices, scores, fps, used = choose_frames(path, interval_s, share)
         wanted = set(indices)
         for index, frame in enumerate(_frames(path)):
+            if index > indices[-1]:
+                break
             if index not in wanted:
                 continue
             name = f"{stem}_{index:06d}"
