@@ -162,10 +162,17 @@ def test_view_truth_metrics_scores_the_covered_pixels_apart():
     covered = np.ones((16, 16), dtype=bool)
     covered[:, :4] = False
     truth_depth = rng.uniform(1.0, 5.0, (16, 16))
-    common = dict(full=restored, restored=restored, depth=truth_depth, clean=clean,
-                  water=clean, truth_depth=truth_depth, gain=GAIN, metres_per_unit=1.0)
+    water = clean * 0.8
+    full = water / GAIN
+    full[:, :4] = 0.0                                       # and the novel view wrong there
+    common = dict(full=full, restored=restored, depth=truth_depth, clean=clean,
+                  water=water, truth_depth=truth_depth, gain=GAIN, metres_per_unit=1.0)
     row = truth.view_truth_metrics(**common, covered=covered)
     assert row["restored_psnr_linear_covered"] == float("inf")
+    assert row["full_vs_water_psnr_linear_covered"] == float("inf")
+    assert row["full_vs_water_psnr_linear"] < 20
     assert row["restored_psnr_linear"] < 20
     assert row["covered_share"] == pytest.approx(0.75)
-    assert "restored_psnr_linear_covered" not in truth.view_truth_metrics(**common)
+    without = truth.view_truth_metrics(**common)
+    assert "restored_psnr_linear_covered" not in without
+    assert "full_vs_water_psnr_linear_covered" not in without

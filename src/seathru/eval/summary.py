@@ -30,7 +30,8 @@ VIEW_COLUMNS = ("dataset", "view", *IMAGE_COLUMNS, "lpips")
 TRUTH_COLUMNS = ("restored_psnr_linear", "restored_ssim_linear", "restored_psnr_srgb",
                  "restored_ssim_srgb", "full_vs_clean_psnr_linear", "full_vs_clean_ssim_linear",
                  "full_vs_water_psnr_linear", "depth_median_abs_rel", "depth_corr",
-                 "depth_rmse_m", "restored_psnr_linear_covered", "covered_share",
+                 "depth_rmse_m", "restored_psnr_linear_covered",
+                 "full_vs_water_psnr_linear_covered", "covered_share",
                  "photo_restored_psnr_linear", "photo_restored_ssim_linear",
                  "photo_restored_psnr_linear_covered")
 
@@ -56,6 +57,7 @@ class ViewMetrics(TypedDict):
     depth_corr: NotRequired[float]
     depth_rmse_m: NotRequired[float]
     restored_psnr_linear_covered: NotRequired[float]   # on pixels 2+ training views see
+    full_vs_water_psnr_linear_covered: NotRequired[float]
     covered_share: NotRequired[float]                   # of the pixels restored_* scores
     photo_restored_psnr_linear: NotRequired[float]      # the photograph restored by the model
     photo_restored_ssim_linear: NotRequired[float]

@@ -147,9 +147,10 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
         gain: ``(3,)`` from :func:`pooled_gain`; metres_per_unit: from
             :func:`camera_metric_scale`.
         covered: ``(H, W)`` bool or None: the pixels whose surface two or more training views
-            see (:func:`training_view_coverage`); given, the restored view is also scored on
-            those alone (``restored_psnr_linear_covered``, ``covered_share`` of the scored
-            pixels).
+            see (:func:`training_view_coverage`); given, the restored view and the full
+            render against the truth with water are also scored on those alone
+            (``restored_psnr_linear_covered``, ``full_vs_water_psnr_linear_covered``: the novel
+            view where a reconstruction can know it; ``covered_share`` of the scored pixels).
         restored_photo: ``(H, W, 3)`` or None: the view's photograph with the water removed
             by the model's render (``seathru.radiometry.restore``); given, scored alike
             (``photo_restored_psnr_linear``, ``..._ssim_linear``, ``..._psnr_linear_covered``).
@@ -164,6 +165,9 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
         seen = defined & np.asarray(covered, dtype=bool)
         extra = {"restored_psnr_linear_covered": metrics.image_metrics(
                      gain * restored, clean, valid=seen)["psnr_linear"] if seen.any()
+                 else float("nan"),
+                 "full_vs_water_psnr_linear_covered": metrics.image_metrics(
+                     gain * full, water, valid=seen)["psnr_linear"] if seen.any()
                  else float("nan"),
                  "covered_share": float(seen.sum() / max(int(defined.sum()), 1))}
     if restored_photo is not None:
