@@ -163,21 +163,20 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
     extra = {}
     if covered is not None:
         seen = defined & np.asarray(covered, dtype=bool)
-        extra = {"restored_psnr_linear_covered": metrics.image_metrics(
-                     gain * restored, clean, valid=seen)["psnr_linear"] if seen.any()
-                 else float("nan"),
-                 "full_vs_water_psnr_linear_covered": metrics.image_metrics(
-                     gain * full, water, valid=seen)["psnr_linear"] if seen.any()
-                 else float("nan"),
+
+        def covered_psnr(image: np.ndarray, reference: np.ndarray) -> float:
+            return metrics.image_metrics(gain * image, reference, valid=seen)["psnr_linear"] \
+                if seen.any() else float("nan")
+
+        extra = {"restored_psnr_linear_covered": covered_psnr(restored, clean),
+                 "full_vs_water_psnr_linear_covered": covered_psnr(full, water),
                  "covered_share": float(seen.sum() / max(int(defined.sum()), 1))}
     if restored_photo is not None:
         photo_m = metrics.image_metrics(gain * restored_photo, clean, valid=defined)
         extra["photo_restored_psnr_linear"] = photo_m["psnr_linear"]
         extra["photo_restored_ssim_linear"] = photo_m["ssim_linear"]
         if covered is not None:
-            extra["photo_restored_psnr_linear_covered"] = metrics.image_metrics(
-                gain * restored_photo, clean, valid=seen)["psnr_linear"] if seen.any() \
-                else float("nan")
+            extra["photo_restored_psnr_linear_covered"] = covered_psnr(restored_photo, clean)
     return {
         "restored_psnr_linear": restored_m["psnr_linear"],
         "restored_ssim_linear": restored_m["ssim_linear"],
