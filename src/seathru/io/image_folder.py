@@ -106,16 +106,18 @@ def folder_files(folder: Path, every_folder: bool = False) -> list[tuple[Path, s
         (path, path.stem) for path in _visible_files(folder)]
 
 
-def select_files(folder: Path, kind: str, every_folder: bool = False
+def select_files(folder: Path, kind: str, every_folder: bool = False,
+                 files: list[tuple[Path, str]] | None = None
                  ) -> tuple[list[tuple[Path, str, str]], list[RejectedFile], dict[str, Any]]:
     """Images of ``folder`` (with ``every_folder``, of its subfolders too:
     :func:`every_image_file`) to decode as ``(path, name, kind)``, rejected files and what was
-    detected (:func:`select_paths`; names are file stems).
+    detected (:func:`select_paths`; names are file stems). ``files``: the folder's listing
+    (:func:`folder_files`) where the caller has it already.
 
     Raises:
         PipelineError: no image file found (naming the subfolders that hold some).
     """
-    files = folder_files(folder, every_folder)
+    files = folder_files(folder, every_folder) if files is None else files
     if not any(detect_kind(path) for path, _ in files):
         with_images = image_subfolders(folder)
         listed = ", ".join(f"{name} ({count})" for name, count in with_images[:8])
@@ -262,9 +264,8 @@ def find_inputs(given: Path, subdir: str | None, layout: str | None, images: str
         videos = [(path, name) for path, name in files if is_video(path)]
         if videos and not any(detect_kind(path) for path, _ in files):
             return _video_inputs(folder, named, files, videos, kind)
-        found = InputImages(folder, named, *select_files(folder, kind, every_folder))
-        found.detection["ignored"] = [n for n in found.detection["ignored"]
-                                      if not is_video(Path(n))]
+        photos = [(path, name) for path, name in files if not is_video(path)]
+        found = InputImages(folder, named, *select_files(folder, kind, every_folder, photos))
         found.rejected += [{"file": path.name, "reason": (
             "a video beside photographs: the photographs are used (give the video a dataset "
             "row of its own to take frames from it)")} for path, _ in videos]
