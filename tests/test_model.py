@@ -169,6 +169,33 @@ def test_rays_through_points_are_the_pixels_they_fall_in_where_the_dataset_has_t
     assert not any(tuple(np.round(d.tolist(), 6)) in held_directions for d in after.directions)
 
 
+def test_deblurred_colours_stay_with_their_rays_through_every_selection():
+    """The water fit's colour of a ray comes from the same pixel of the deblurred image as its
+    training colour, after a hold-out, in a fixed subset and through surface points."""
+    frames = [look_at_frame((x, 0.3, -4.0), name=f"v{i}", width=16, height=12, cx=8.0, cy=6.0)
+              for i, x in enumerate((-1.0, 0.0, 1.0))]
+    rng = np.random.default_rng(3)
+    images = [rng.random((12, 16, 3)).astype(np.float32) for _ in frames]
+    images[0][0, 0] = np.nan                           # dropped: the two must stay aligned
+    masks = [np.ones((12, 16), bool) for _ in frames]
+    masks[2][5, :] = False
+    sharp = [image * 10.0 + 1.0 for image in images]   # a different colour, the same pixel
+    data = RayDataset(frames, images, masks, deblurred=sharp)
+    data.hold_out(50, seed=4)
+    plain, deblurred = data.fixed_subset(200, seed=5), data.fixed_subset(200, seed=5,
+                                                                        deblurred=True)
+    torch.testing.assert_close(plain.directions, deblurred.directions)
+    torch.testing.assert_close(deblurred.rgb, plain.rgb * 10.0 + 1.0)
+    points = rng.uniform(-0.5, 0.5, (30, 3))
+    (through, _), (through_sharp, _) = data.rays_through(points), data.rays_through(points, True)
+    assert len(through) > 0
+    torch.testing.assert_close(through_sharp.rgb, through.rgb * 10.0 + 1.0)
+    # without deblurred images the option gives the training colour
+    bare = RayDataset(frames, images, masks)
+    torch.testing.assert_close(bare.fixed_subset(50, 6, deblurred=True).rgb,
+                               bare.fixed_subset(50, 6).rgb)
+
+
 # ---------------------------------------------------------------------------------- contraction
 
 @settings(max_examples=50, deadline=None)

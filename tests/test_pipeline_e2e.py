@@ -28,6 +28,7 @@ from snakemake.api import SnakemakeApi
 from snakemake.settings.types import (ConfigSettings, DAGSettings, ExecutionSettings,
                                       OutputSettings, ResourceSettings)
 
+from seathru.io.cameras import read_cameras
 from tests.conftest import REPO_ROOT
 
 pytestmark = pytest.mark.slow
@@ -117,6 +118,11 @@ def test_good_datasets_finish_and_the_bad_one_fails_clearly(finished_collection)
         summary = json.loads((workdir / "results" / dataset / "evaluate" / "summary.json")
                              .read_text())
         assert summary
+    # the simulated RAW files were demosaiced and undistorted here: each training image
+    # carries that blur, and the water fit works on images with it taken out
+    cameras = read_cameras(workdir / "results" / "sim_water" / "poses" / "cameras.json")
+    assert all(f.blur_px is not None and f.blur_px[0] > f.blur_px[1] > 0 for f in cameras.frames)
+    assert "blur taken out" in (workdir / "logs" / "sim_water" / "train.log").read_text()
     log = (workdir / "logs" / "bad_raw" / "ingest.log").read_text()
     assert re.search(r"seathru ingest: error: .*usable image", log), log[-2000:]
     assert not (workdir / "results" / "bad_raw" / "ingest").exists()

@@ -25,6 +25,8 @@ from seathru.errors import PipelineError
 from seathru.io.cameras import read_cameras
 from seathru.io.warnings import read_warnings
 from seathru.io.colmap import make_camera, undistortion
+from seathru.io.pose_outputs import image_blur
+from seathru.radiometry.deblur import processing_blur
 from seathru.geometry.intrinsics import focal_from_metadata
 
 THREADS = "2"
@@ -228,6 +230,28 @@ def _source_and_expected(camera, warp, texture):
     source = texture(rays[:, 0], rays[:, 1]).reshape(camera.height, camera.width, 3)
     fv, fu = np.mgrid[0:warp.height, 0:warp.width] + 0.5
     return source, texture((fu - warp.cx) / warp.fx, (fv - warp.cy) / warp.fy)
+
+
+def test_image_blur_follows_how_each_image_was_decoded_resized_and_resampled():
+    class Ingest:
+        manifest = {"images": [
+            {"name": "raw", "kind": "raw", "decoder": {"demosaic": "LINEAR"},
+             "source_size": [400, 300]},
+            {"name": "binned", "kind": "raw", "decoder": {"demosaic": "half_size"},
+             "source_size": [200, 150]},
+            {"name": "jpeg", "kind": "srgb", "decoder": {}, "source_size": [200, 150]}]}
+
+    warped = undistortion(make_camera("SIMPLE_RADIAL", 200, 150, [150.0, 100.0, 75.0, 0.05]))
+    straight = undistortion(make_camera("SIMPLE_PINHOLE", 200, 150, [150.0, 100.0, 75.0]))
+    assert straight.map_x is None and warped.map_x is not None
+    # a RAW decoded at 400 px wide, trained at 200: half the demosaic's blur, plus the warp's
+    assert image_blur(Ingest, "raw", warped, "linear") == processing_blur(
+        "LINEAR", warped.width / 400, "linear")
+    assert image_blur(Ingest, "raw", straight, "linear") == processing_blur("LINEAR", 0.5)
+    assert image_blur(Ingest, "binned", straight, "linear") == [0.0, 0.0, 0.0]
+    assert image_blur(Ingest, "jpeg", warped, "cubic") == [0.0, 0.0, 0.0]
+    assert image_blur(Ingest, "jpeg", warped, "linear") == processing_blur(None, 1.0, "linear")
+    assert image_blur(Ingest, "unlisted", warped, "linear") is None
 
 
 def test_cubic_undistortion_keeps_the_detail_bilinear_blurs():
@@ -461,6 +485,8 @@ def test_colmap_outputs_follow_the_camera_contract(fern_colmap):
     assert report["attempts"][0]["settings"]["matcher"] == "sequential"
     assert report["source_cameras"][0]["model"] == "SIMPLE_RADIAL"
     assert report["undistort_interpolation"] == "linear"
+    # this ingest folder has no manifest: how its images were decoded is not known
+    assert all(f.blur_px is None for f in cameras.frames)
     assert (fern_colmap / "sparse" / "cameras.bin").exists()
     assert not (fern_colmap / "_colmap_work").exists()
 

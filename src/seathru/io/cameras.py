@@ -16,7 +16,10 @@
          "fx": ..., "fy": ..., "cx": ..., "cy": ...,   # pinhole, pixels
          "c2w": [[...4], [...4], [...4], [0, 0, 0, 1]],
          "near": float, "far": float,      # per-frame bounds on the range, normalised units
-         "split": "train" | "test"}
+         "split": "train" | "test",
+         "blur_px": [r, g, b]}             # optional: Gaussian sigma (pixels) of the blur the
+                                           # pipeline's decoding and undistortion added
+                                           # (seathru.radiometry.deblur); absent: not known
       ]
     }
 
@@ -65,6 +68,7 @@ class Frame:
     far: float
     split: str = "train"
     mask: str | None = None
+    blur_px: list[float] | None = None
 
     @property
     def c2w_array(self) -> np.ndarray:
@@ -109,8 +113,9 @@ class CameraSet:
 def _frame_dict(frame: Frame) -> dict:
     data = asdict(frame)
     data["c2w"] = [[float(v) for v in row] for row in frame.c2w]
-    if data["mask"] is None:
-        del data["mask"]
+    for optional in ("mask", "blur_px"):
+        if data[optional] is None:
+            del data[optional]
     return data
 
 

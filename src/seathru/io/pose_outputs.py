@@ -26,6 +26,7 @@ from seathru.io.dataset_readers import PosedDataset, PosedView
 from seathru.io.images import read_image, read_mask, write_float_tiff, write_mask
 from seathru.io.manifest import IngestFolder
 from seathru.io.pose_report import OutputSummary
+from seathru.radiometry.deblur import processing_blur
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +51,23 @@ def fill_bounds(views: list[PosedView], near: float | None, far: float | None,
         view.near, view.far = view_near, view_far
         if not 0 < view.near < view.far:
             raise PipelineError(f"{view.name}: invalid bounds near={view.near}, far={view.far}")
+
+
+def image_blur(ingest: IngestFolder, name: str, warp: Undistortion,
+               interpolation: Interpolation) -> list[float] | None:
+    """The blur (Gaussian sigma per channel, pixels) the ingest's demosaic and the undistortion
+    put into view ``name``'s training image (``seathru.radiometry.deblur.processing_blur``);
+    None without a manifest record of the image (how it was decoded is not known)."""
+    manifest = ingest.manifest if isinstance(ingest.manifest, dict) else {}
+    record = next((r for r in manifest.get("images", []) if r.get("name") == name), None)
+    if record is None:
+        return None
+    demosaic = (record.get("decoder") or {}).get("demosaic") if record.get("kind") == "raw" \
+        else None
+    decoded_width = (record.get("source_size") or [0])[0]
+    scale = warp.width / decoded_width if decoded_width else 1.0
+    resampled = interpolation if warp.map_x is not None else None
+    return processing_blur(demosaic, scale, resampled)
 
 
 def _undistort(views: list[PosedView], ingest: IngestFolder, out: Path,
@@ -112,6 +130,8 @@ def write_pose_outputs(dataset: PosedDataset, ingest: IngestFolder, out: Path,
                             f"{ingest.linear_dir}; do the names match?")
     fill_bounds(views, near, far, where)
     records, cache = _undistort(views, ingest, out, interpolation)
+    blur = {view.name: image_blur(ingest, view.name, warp, interpolation)
+            for view, warp in records}
     c2w = np.array([view.c2w for view, _ in records])
     intrinsics = np.array([[[w.fx, 0, w.cx], [0, w.fy, w.cy], [0, 0, 1]] for _, w in records])
     sizes = np.array([[w.width, w.height] for _, w in records])
@@ -129,7 +149,7 @@ def write_pose_outputs(dataset: PosedDataset, ingest: IngestFolder, out: Path,
                             mask=f"masks/{view.name}.png", width=warp.width, height=warp.height,
                             fx=warp.fx, fy=warp.fy, cx=warp.cx, cy=warp.cy, c2w=pose.tolist(),
                             near=view_near * scale, far=view_far * scale,
-                            split=split[view.name]))
+                            split=split[view.name], blur_px=blur[view.name]))
     cameras = CameraSet(frames=frames, near=min(f.near for f in frames),
                         far=max(f.far for f in frames), centre=centre.tolist(), scale=scale,
                         source=dataset.source)

@@ -138,6 +138,11 @@ class MediumConfig:
                   "docs/water.md; without the sparse-depth loss it neither gains nor loses "
                   "on six simulated surveys, but lowers green and blue attenuation on "
                   "some); 0 = fit once on every pixel")
+    refit_deblur: bool = setting(
+        True, help="refits and the final water assessment use the training images with the "
+                   "blur of the pipeline's own demosaic and undistortion deconvolved (each "
+                   "frame's blur_px in cameras.json; the model still trains on the images as "
+                   "they are)")
     refit_voxel: float = setting(0.005, help="refit: surface points are grouped in voxels of "
                                              "this share of the scene box diagonal (voxel "
                                              "grouping, and the intervals' regrouping)")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,6 +15,7 @@ from seathru.nerf.capacity import choose_capacity, measure_scene, steps_for_pass
 from seathru.nerf.config import TrainConfig, resolve_batch_rays
 from seathru.nerf.model import SeaThruModel, scene_from_frames
 from seathru.nerf.rays import RayBatch, RayDataset, depth_rays, frame_rays
+from seathru.radiometry.deblur import deblurred
 from seathru.radiometry.linearise import block_average
 from seathru.radiometry.open_water import open_water_mask
 
@@ -63,7 +65,8 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
     config = resolve_batch_rays(config, device.type)
     water_masks, water_share, in_view = open_water_in_view(config, images, masks)
     data = RayDataset(train_frames, images, masks, device=device,
-                      open_water=water_masks if in_view else None)
+                      open_water=water_masks if in_view else None,
+                      deblurred=deblurred_images(config, train_frames, images))
     if len(data) == 0:
         raise PipelineError("the training images have no valid pixel (check the masks)")
     if sparse_points is not None and config.loss.sparse_depth_weight > 0:
@@ -153,6 +156,22 @@ def veiling_light_estimate(images, masks=None, block: int = 4, share: float = 0.
     if float(spread.max()) > max_spread:
         return None
     return [float(v) for v in median]
+
+
+def deblurred_images(config: TrainConfig, frames, images) -> list[np.ndarray] | None:
+    """The training images with the blur of the pipeline's own processing (each frame's
+    ``blur_px``) deconvolved, for the water fit (``medium.refit_deblur``); None when off, when
+    the medium is off, or when no frame records a blur."""
+    if not config.medium.refit_deblur or config.medium.mode == "off" or \
+            not any(max(f.blur_px or [0.0]) > 0 for f in frames):
+        return None
+    started = time.perf_counter()
+    sharp = [deblurred(image, frame.blur_px or [0.0, 0.0, 0.0])
+             for frame, image in zip(frames, images)]
+    log.info("water fit: the demosaic's and undistortion's blur taken out of %d images "
+             "(sigma %s px) in %.1f s", len(frames), frames[0].blur_px,
+             time.perf_counter() - started)
+    return sharp
 
 
 def open_water_in_view(config: TrainConfig, images, masks=None

@@ -213,10 +213,15 @@ class RayDataset:
     ``images``: one (H, W, 3) float array per frame; ``masks``: (H, W) bool or None per frame.
     Pixels outside the mask or with a non-finite value are left out. ``open_water``: (H, W)
     bool per frame (``seathru.radiometry.open_water``), kept per ray, or None.
+    ``deblurred``: one (H, W, 3) array per frame, the images with their processing blur taken
+    out (``seathru.radiometry.deblur``), kept per ray on the CPU for the water fit
+    (:meth:`fixed_subset` and :meth:`rays_through` with ``deblurred=True``), or None.
     """
 
-    def __init__(self, frames, images, masks=None, device="cpu", open_water=None):
+    def __init__(self, frames, images, masks=None, device="cpu", open_water=None,
+                 deblurred=None):
         origins, dirs, near, far, rgb, water, pixel_ids = [], [], [], [], [], [], []
+        sharp = []
         self.frames = list(frames)
         self._pixel_offsets = np.cumsum([0] + [f.width * f.height for f in self.frames])
         masks = masks if masks is not None else [None] * len(frames)
@@ -241,6 +246,9 @@ class RayDataset:
             near.append(torch.full((n,), float(frame.near)))
             far.append(torch.full((n,), float(frame.far)))
             rgb.append(torch.from_numpy(image.reshape(-1, 3))[keep_t])
+            if deblurred is not None:
+                sharp.append(torch.from_numpy(np.asarray(deblurred[index], np.float32)
+                                              .reshape(-1, 3))[keep_t])
             pixel_ids.append(torch.arange(keep.size)[keep_t] + int(self._pixel_offsets[index]))
             if open_water is not None:
                 flags = np.zeros(keep.shape, bool) if water_mask is None else water_mask
@@ -250,6 +258,7 @@ class RayDataset:
                              torch.cat(water) if open_water is not None else None).to(device)
         # (R,) ascending: frame offset + row * width + column of each ray's pixel
         self.pixel_ids = torch.cat(pixel_ids)
+        self.deblurred_rgb = torch.cat(sharp) if deblurred is not None else None
 
     def __len__(self) -> int:
         return len(self.rays)
@@ -269,9 +278,20 @@ class RayDataset:
         kept = order[count:].sort().values
         self.rays = self.rays.subset(kept)
         self.pixel_ids = self.pixel_ids[kept.cpu()]
+        if self.deblurred_rgb is not None:
+            self.deblurred_rgb = self.deblurred_rgb[kept.cpu()]
         return held
 
-    def rays_through(self, points: np.ndarray) -> tuple[RayBatch, np.ndarray]:
+    def _subset(self, index: Tensor, deblurred: bool) -> RayBatch:
+        """The rays at ``index`` (CPU); with ``deblurred``, their colour from the deblurred
+        images where the dataset has them."""
+        batch = self.rays.subset(index.to(self.rays.origins.device))
+        if deblurred and self.deblurred_rgb is not None:
+            batch.rgb = self.deblurred_rgb[index].to(batch.rgb.device)
+        return batch
+
+    def rays_through(self, points: np.ndarray, deblurred: bool = False
+                     ) -> tuple[RayBatch, np.ndarray]:
         """The dataset's rays whose pixel each point falls in, in every frame that has the
         point in front of it and inside its image (pixels left out of the dataset, masked or
         held out, give none). Whether the frame sees the point or something in front of it is
@@ -279,6 +299,7 @@ class RayDataset:
 
         Args:
             points: (N, 3) world points (the frames' normalised units).
+            deblurred: colour from the deblurred images (see the class), where kept.
 
         Returns:
             the rays (M of them) and (M,) the index into ``points`` of each.
@@ -301,11 +322,12 @@ class RayDataset:
         position = torch.searchsorted(self.pixel_ids, wanted_t).clamp_max(len(self.pixel_ids) - 1)
         present = (self.pixel_ids[position] == wanted_t).numpy()
         index = position[torch.from_numpy(present)]
-        return self.rays.subset(index.to(self.rays.origins.device)), owners_np[present]
+        return self._subset(index, deblurred), owners_np[present]
 
-    def fixed_subset(self, count: int, seed: int) -> RayBatch:
-        """A reproducible subset of at most ``count`` rays (evaluation probes)."""
+    def fixed_subset(self, count: int, seed: int, deblurred: bool = False) -> RayBatch:
+        """A reproducible subset of at most ``count`` rays (evaluation probes); with
+        ``deblurred``, their colour from the deblurred images where kept (see the class)."""
         generator = torch.Generator().manual_seed(seed)
         count = min(count, len(self))
         index = torch.randperm(len(self), generator=generator)[:count]
-        return self.rays.subset(index.to(self.rays.origins.device))
+        return self._subset(index, deblurred)

@@ -168,8 +168,8 @@ class CorrespondenceRays:
 
 
 def correspondence_rays(dataset: "RayDataset", render, anchors: int, budget: int, seed: int,
-                        min_opacity: float = 0.9, tolerance: float = 0.02
-                        ) -> CorrespondenceRays:
+                        min_opacity: float = 0.9, tolerance: float = 0.02,
+                        deblurred: bool = False) -> CorrespondenceRays:
     """Pixels of the same surface points in every training view that sees them.
 
     Voxel groups of randomly drawn pixels meet by chance: few pixels share a voxel, and those
@@ -190,6 +190,7 @@ def correspondence_rays(dataset: "RayDataset", render, anchors: int, budget: int
         anchors: rays drawn to find surface points; budget: most rays taken through them.
         seed: seeds both draws.
         min_opacity, tolerance: see above.
+        deblurred: the rays' colour from the dataset's deblurred images, where it keeps them.
 
     Returns:
         the seeing rays (ids = their point) followed by the anchors that found no surface
@@ -201,14 +202,14 @@ def correspondence_rays(dataset: "RayDataset", render, anchors: int, budget: int
         data = surface_data(found.rays.origins, found.rays.directions, found.rays.rgb,
                             found.depth, found.opacity, voxel, point_ids=found.point_ids)
     """
-    drawn = dataset.fixed_subset(anchors, seed)
+    drawn = dataset.fixed_subset(anchors, seed, deblurred)
     first = render(drawn)
     surface = (first["opacity"] > min_opacity) & torch.isfinite(first["depth_median"])
     if drawn.open_water is not None:
         surface &= ~drawn.open_water
     points = (drawn.origins[surface] + drawn.directions[surface]
               * first["depth_median"][surface, None]).double().cpu().numpy()
-    through, owner = dataset.rays_through(points)
+    through, owner = dataset.rays_through(points, deblurred)
     if len(owner) > budget:   # whole points only: keep a random subset of them
         generator = torch.Generator().manual_seed(seed + 1)
         order = torch.randperm(len(points), generator=generator).numpy()

@@ -84,11 +84,12 @@ class WaterRefitting:
         point_ids = None
         if c.medium.refit_grouping == "points":
             found = correspondence_rays(self.data, self.render_batch, c.medium.refit_rays // 4,
-                                        c.medium.refit_rays, seed, c.medium.refit_opacity)
+                                        c.medium.refit_rays, seed, c.medium.refit_opacity,
+                                        deblurred=c.medium.refit_deblur)
             rays, depth, opacity, point_ids = (found.rays, found.depth, found.opacity,
                                                found.point_ids)
         else:
-            rays = self.data.fixed_subset(c.medium.refit_rays, seed)
+            rays = self.data.fixed_subset(c.medium.refit_rays, seed, c.medium.refit_deblur)
             rendered = self.render_batch(rays)
             depth, opacity = rendered["depth_median"], rendered["opacity"]
         diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
