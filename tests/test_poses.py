@@ -10,6 +10,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pycolmap
 import pytest
 import tifffile
 from hypothesis import given, settings
@@ -528,10 +529,11 @@ def test_known_focal_from_the_manifest_can_be_held_fixed(shared_data, tmp_path):
     assert frame.fx == pytest.approx(expected) and frame.fy == pytest.approx(expected)
 
 
-def test_images_of_two_sizes_get_a_camera_each_unless_one_is_asked_for(shared_data, tmp_path):
+def test_images_of_two_sizes_get_a_camera_per_size_unless_one_is_asked_for(shared_data,
+                                                                            tmp_path):
     """Every other fern frame cropped to 16:9 (a camera switched between modes): the default
-    (auto) gives those images cameras of their own; one shared camera fails, naming the
-    setting."""
+    (auto) gives each size one camera, per-image one camera per image; one shared camera
+    fails, naming the setting."""
     ingest = tmp_path / "ingest"
     for folder in ("matching", "linear"):
         (ingest / folder).mkdir(parents=True)
@@ -542,19 +544,26 @@ def test_images_of_two_sizes_get_a_camera_each_unless_one_is_asked_for(shared_da
             image = image[47:47 + 284]
         for folder in ("matching", "linear"):
             cv2.imwrite(str(ingest / folder / path.name), image)
-    with pytest.raises(PipelineError, match="poses.camera_mode to auto or per-image"):
+    with pytest.raises(PipelineError, match="poses.camera_mode to auto, per-size or per-image"):
         run_poses("--ingest", str(ingest), "--out", str(tmp_path / "single"), "--threads",
                   THREADS, "--no-cross-check", "--camera-mode", "single")
-    out = tmp_path / "poses"
-    run_poses("--ingest", str(ingest), "--out", str(out), "--threads", THREADS,
-              "--no-cross-check")
-    frames = read_cameras(out / "cameras.json").frames
-    assert len(frames) >= 6
     cropped = {path.stem for index, path in enumerate(paths) if index % 2}
-    # undistorted to pinhole cameras of their own, a few pixels smaller
-    for frame in frames:
-        assert (frame.height < 290) == (frame.name in cropped), (frame.name, frame.height)
-    assert len({f.name in cropped for f in frames}) == 2
+    for mode in ("auto", "per-image"):
+        out = tmp_path / mode
+        run_poses("--ingest", str(ingest), "--out", str(out), "--threads", THREADS,
+                  "--no-cross-check", "--camera-mode", mode)
+        frames = read_cameras(out / "cameras.json").frames
+        assert len(frames) >= 6
+        # undistorted to pinhole cameras, a few pixels smaller than their size
+        for frame in frames:
+            assert (frame.height < 290) == (frame.name in cropped), (frame.name, frame.height)
+        assert len({f.name in cropped for f in frames}) == 2
+        model = pycolmap.Reconstruction(out / "sparse")
+        used = {image.camera_id for image in model.images.values()}
+        assert len(used) == (2 if mode == "auto" else len(model.images)), mode
+        report = json.loads((out / "report.json").read_text())
+        assert report["attempts"][0]["settings"]["camera_mode"] == \
+            ("per-size" if mode == "auto" else "per-image")
 
 
 def test_unrelated_images_fail_with_advice_and_leave_nothing(tmp_path):

@@ -27,8 +27,9 @@ MATCHERS: tuple[str, ...] = get_args(Matcher)
 MAPPERS: tuple[str, ...] = get_args(Mapper)
 
 
-#: ``poses.camera_mode`` as :attr:`SfmSettings.single_camera`.
-SINGLE_CAMERA = {"auto": None, "single": True, "per-image": False}
+#: How images share cameras (``poses.camera_mode``): one for all, one per image size, one per
+#: image; ``auto`` is ``single`` when the images have one size, ``per-size`` otherwise.
+CameraMode = Literal["auto", "single", "per-size", "per-image"]
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,7 @@ class SfmSettings:
     """Everything that changes a COLMAP run; recorded as is in the report."""
 
     camera_model: str = "SIMPLE_RADIAL"
-    single_camera: bool | None = True   # None: one camera if the images share one size
+    camera_mode: str = "single"     # CameraMode; auto is resolved before COLMAP runs
     matcher: str = "sequential"
     overlap: int = 10
     mapper: str = "incremental"

@@ -54,12 +54,24 @@ def colmap_log_level(verbose: bool) -> Iterator[None]:
 
 
 def extract_features(database: Path, image_dir: Path, names: list[str], settings: SfmSettings,
-                     image_size: tuple[int, int], mask_dir: Path | None = None) -> None:
+                     image_size: tuple[int, int], mask_dir: Path | None = None,
+                     sizes: dict[str, tuple[int, int]] | None = None) -> None:
     """SIFT on the CPU for ``names`` (file names under ``image_dir``) into a new database.
 
     ``image_size`` (width, height) is that of every image; used for a known focal length.
     ``mask_dir`` holds ``<file name>.png`` masks (black = no features), COLMAP's layout.
+    ``settings.camera_mode`` ``per-size`` gives the images of each size in ``sizes`` (by file
+    name) one camera: COLMAP's own modes share one camera or none (its ``AUTO`` needs EXIF,
+    which the matching PNGs do not have), so each size is extracted on its own with one.
     """
+    if settings.camera_mode == "per-size":
+        groups: dict[tuple[int, int], list[str]] = {}
+        for name in names:
+            groups.setdefault(tuple((sizes or {})[name]), []).append(name)
+        for size, group in sorted(groups.items()):
+            extract_features(database, image_dir, group, replace(settings, camera_mode="single"),
+                             size, mask_dir)
+        return
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = settings.camera_model
     if settings.focal_px is not None:
@@ -72,7 +84,8 @@ def extract_features(database: Path, image_dir: Path, names: list[str], settings
     extraction.num_threads = settings.threads
     extraction.max_image_size = settings.max_image_size
     extraction.sift.max_num_features = settings.max_features
-    mode = pycolmap.CameraMode.SINGLE if settings.single_camera else pycolmap.CameraMode.PER_IMAGE
+    mode = pycolmap.CameraMode.SINGLE if settings.camera_mode == "single" \
+        else pycolmap.CameraMode.PER_IMAGE
     pycolmap.extract_features(database, image_dir, image_names=names, camera_mode=mode,
                               reader_options=reader, extraction_options=extraction,
                               device=pycolmap.Device.cpu)
@@ -225,11 +238,12 @@ class _Runner:
 
 def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: SfmSettings,
                 gate: QualityGate, image_size: tuple[int, int], mask_dir: Path | None = None,
-                retry: bool = True, cross_check: bool = True, verbose: bool = False
-                ) -> SfmResult:
+                retry: bool = True, cross_check: bool = True, verbose: bool = False,
+                sizes: dict[str, tuple[int, int]] | None = None) -> SfmResult:
     """Extract, match and map ``names`` with the quality gate, retries and cross-check.
 
-    Features are extracted once; each matcher's database is built once and copied for every
+    Features are extracted once (``sizes``: each file's (width, height), for
+    ``camera_mode`` ``per-size``); each matcher's database is built once and copied for every
     mapping attempt so the attempts do not see each other's writes.
 
     Without ``cross_check`` the first model that passes the gate is kept (after retrying with
@@ -251,7 +265,8 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
     chosen: SfmRun | None = None
     with colmap_log_level(verbose):
         start = time.perf_counter()
-        extract_features(runner.features_db, image_dir, names, settings, image_size, mask_dir)
+        extract_features(runner.features_db, image_dir, names, settings, image_size, mask_dir,
+                         sizes)
         log.info("SIFT features for %d images in %.1f s", len(names), time.perf_counter() - start)
         queue = list(plan)
         while queue and chosen is None:
@@ -282,20 +297,20 @@ def _fmt(value: float | None) -> str:
 
 def prepare_matching_images(ingest: IngestFolder, names: list[str], image_dir: Path,
                             mask_dir: Path, clahe_clip: float | None, clahe_tiles: int = 8
-                            ) -> tuple[tuple[int, int] | None, bool]:
+                            ) -> tuple[dict[str, tuple[int, int]], bool]:
     """Write grey 8-bit copies (CLAHE'd unless ``clahe_clip`` is None) and COLMAP-named masks.
 
-    Returns the common image size (None if sizes differ) and whether any mask was written.
+    Returns each copy's (width, height) by file name and whether any mask was written.
     """
     image_dir.mkdir(parents=True)
-    sizes, any_mask = set(), False
+    sizes, any_mask = {}, False
     for name in names:
         source = ingest.matching[name]
         image = cv2.imread(str(source), cv2.IMREAD_UNCHANGED)
         if image is None:
             raise PipelineError(f"{source}: cannot be read as an image")
         image = matching_grey(image, clahe_clip, clahe_tiles)
-        sizes.add((image.shape[1], image.shape[0]))
+        sizes[f"{name}.png"] = (image.shape[1], image.shape[0])
         cv2.imwrite(str(image_dir / f"{name}.png"), image)
         if name in ingest.matching_masks:
             mask = cv2.imread(str(ingest.matching_masks[name]), cv2.IMREAD_GRAYSCALE)
@@ -305,7 +320,7 @@ def prepare_matching_images(ingest: IngestFolder, names: list[str], image_dir: P
             mask_dir.mkdir(parents=True, exist_ok=True)
             cv2.imwrite(str(mask_dir / f"{name}.png.png"), mask)
             any_mask = True
-    return (sizes.pop() if len(sizes) == 1 else None), any_mask
+    return sizes, any_mask
 
 
 def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: QualityGate,
@@ -337,16 +352,19 @@ def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: Q
                             f"{ingest.linear_dir.name}/, found {len(names)}")
     work = out / "_colmap_work"
     image_dir, mask_dir = work / "images", work / "masks"
-    size, any_mask = prepare_matching_images(ingest, names, image_dir, mask_dir,
-                                             clahe_clip if clahe else None, clahe_tiles)
-    if settings.single_camera and size is None:
+    sizes, any_mask = prepare_matching_images(ingest, names, image_dir, mask_dir,
+                                              clahe_clip if clahe else None, clahe_tiles)
+    distinct = sorted(set(sizes.values()))
+    size = distinct[0] if len(distinct) == 1 else None
+    if settings.camera_mode == "single" and size is None:
         raise PipelineError(f"{ingest.root / 'matching'}: images have different sizes, so they "
-                            f"cannot share one camera; set poses.camera_mode to auto or "
-                            f"per-image (--camera-mode)")
-    if settings.single_camera is None:
-        settings = replace(settings, single_camera=size is not None)
+                            f"cannot share one camera; set poses.camera_mode to auto, per-size "
+                            f"or per-image (--camera-mode)")
+    if settings.camera_mode == "auto":
+        settings = replace(settings, camera_mode="single" if size is not None else "per-size")
         if size is None:
-            log.info("the images have different sizes: one camera per image")
+            log.info("the images have %d sizes (%s): one camera per size", len(distinct),
+                     ", ".join(f"{w}x{h}" for w, h in distinct))
     focal_px, focal_source = (None, "not used (images of different sizes)")
     if size is not None:
         try:
@@ -359,7 +377,8 @@ def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: Q
     gate = replace(gate, reprojection_scale=reprojection_scale(size, settings.max_image_size))
     result = reconstruct(image_dir, [f"{name}.png" for name in names], work, settings, gate,
                          size or (0, 0), mask_dir if any_mask else None, retry=retry,
-                         cross_check=cross_check, verbose=log.isEnabledFor(logging.DEBUG))
+                         cross_check=cross_check, verbose=log.isEnabledFor(logging.DEBUG),
+                         sizes=sizes)
     chosen = result.chosen
     if chosen is None or chosen.registered_fraction < gate.min_registered_fraction:
         raise PipelineError(failure_message(result.attempts, chosen, len(names), gate))

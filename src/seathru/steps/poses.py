@@ -39,7 +39,7 @@ from typing import Literal
 
 from seathru import settings
 from seathru.geometry.intrinsics import CameraModel, FocalPrior
-from seathru.geometry.quality import SINGLE_CAMERA, Mapper, Matcher, QualityGate, SfmSettings
+from seathru.geometry.quality import CameraMode, Mapper, Matcher, QualityGate, SfmSettings
 from seathru.io.atomic import atomic_dir
 from seathru.io.colmap import Interpolation
 from seathru.io.dataset_readers import READERS, read_posed_dataset
@@ -71,8 +71,10 @@ class Settings:
     undistort_interpolation: Interpolation = setting(
         "linear", help="resampling onto the undistorted pinhole cameras: cubic keeps the detail "
                        "(and the noise) bilinear smooths; see docs/water.md")
-    camera_mode: Literal["auto", "single", "per-image"] = setting(
-        "auto", help="one camera shared by all images, one per image, or auto: shared if one size")
+    camera_mode: CameraMode = setting(
+        "auto", help="one camera shared by all images (single), one per image size (per-size: "
+                     "a camera switched between 4:3 and 16:9), one per image, or auto: single "
+                     "when the images have one size, per-size otherwise")
     matcher: Matcher = setting(
         "sequential", help="sequential for ordered dive sets (transects, orbits), exhaustive "
                            "for small unordered sets")
@@ -138,7 +140,7 @@ def run(args: argparse.Namespace) -> None:
     with atomic_dir(args.out) as out:
         if args.source == "colmap":
             sfm = SfmSettings(
-                camera_model=cfg.camera_model, single_camera=SINGLE_CAMERA[cfg.camera_mode],
+                camera_model=cfg.camera_model, camera_mode=cfg.camera_mode,
                 matcher=cfg.matcher, overlap=cfg.overlap, mapper=cfg.mapper,
                 max_image_size=cfg.max_image_size, max_features=cfg.max_features,
                 threads=args.threads, seed=cfg.seed, refine_focal=cfg.refine_focal)
