@@ -134,3 +134,38 @@ def test_uniform_clear_water_with_a_dark_red_channel_has_no_direction_spread():
     # the premise: red alone varies by more than the threshold's share of its own level
     red_share = float(np.max([np.std(im[..., 0]) for im in images]) / blue_water[0])
     assert red_share > MediumConfig().auto_veiling_spread
+
+
+def test_the_water_fit_gets_deblurred_colours_only_where_a_blur_is_recorded_and_wanted():
+    import dataclasses
+
+    import cv2
+
+    from seathru import settings
+    from seathru.io.cameras import CameraSet
+    from seathru.nerf.config import TrainConfig
+    from seathru.nerf.prepare import prepare_run
+
+    rng = np.random.default_rng(5)
+    # reef texture with a photograph's spectrum (white noise softened), then the blur
+    sharp = [cv2.GaussianBlur(_dive_image(rng, 16)[:48, :64], (0, 0), 1.0) for _ in range(3)]
+    images = [cv2.GaussianBlur(image, (0, 0), 0.9) for image in sharp]
+    config = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0})
+    blurred = [dataclasses.replace(f, blur_px=[0.9, 0.9, 0.9]) for f in _frames(3)]
+
+    def run(frames, **medium):
+        chosen = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0,
+                                                     "medium": medium}) if medium else config
+        return prepare_run(chosen, CameraSet(frames=frames, near=0.1, far=4.0), frames,
+                           images, [None] * 3).data
+
+    data = run(blurred)
+    assert data.deblurred_rgb is not None
+    truth = torch.from_numpy(np.concatenate([image.reshape(-1, 3) for image in sharp]))
+    truth = truth[data.pixel_ids].to(data.rays.rgb)
+    # the fit's colours are nearer the unblurred images than the training colours are
+    assert float((data.deblurred_rgb - truth).abs().mean()) < \
+        0.8 * float((data.rays.rgb - truth).abs().mean())
+    assert run(blurred, refit_deblur=False).deblurred_rgb is None
+    assert run(blurred, mode="off").deblurred_rgb is None
+    assert run(_frames(3)).deblurred_rgb is None                      # no blur recorded
