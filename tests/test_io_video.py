@@ -135,3 +135,27 @@ def test_videos_that_cannot_be_used_say_why(tmp_path):
     with pytest.raises(PipelineError, match="GOPR0001.MP4: OpenCV"):
         run_ingest("--input", broken, "--out", tmp_path / "b", "--workers", 1)
     assert not (tmp_path / "b").exists()
+
+
+def test_frames_read_in_time_order_cost_one_pass_and_earlier_ones_start_over(tmp_path):
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), FPS, SIZE)
+    for index in range(20):  # each frame's grey level names it
+        writer.write(np.full((SIZE[1], SIZE[0], 3), 10 * index + 20, np.uint8))
+    writer.release()
+    other = tmp_path / "other.avi"
+    _write_video(other, sharp=set(), frames=5)
+
+    def level(frame: np.ndarray) -> int:
+        return int(round((float(frame.mean()) - 20) / 10))
+
+    before = video.decoded_frames
+    assert [level(video.read_video_frame(path, i)) for i in (3, 7, 12)] == [3, 7, 12]
+    assert video.decoded_frames - before == 13          # one pass, not 4 + 8 + 13 frames
+    assert level(video.read_video_frame(path, 2)) == 2  # an earlier frame starts over
+    assert video.decoded_frames - before == 16
+    video.read_video_frame(other, 1)                    # another video, then back
+    assert level(video.read_video_frame(path, 5)) == 5
+    with pytest.raises(PipelineError, match="has no frame 25"):
+        video.read_video_frame(path, 25)
+    assert level(video.read_video_frame(path, 0)) == 0

@@ -100,17 +100,52 @@ def _frames(path: Path) -> Iterator[np.ndarray]:
         capture.release()
 
 
+class _ForwardReader:
+    """One video decoded in order, left open between reads: frames asked for in time order
+    (the held-out and the training frames, by name) cost one pass over the video, not one
+    partial pass each."""
+
+    def __init__(self, path: Path):
+        self.path, self.frames, self.next_index = path, _frames(path), 0
+
+    def read(self, index: int) -> np.ndarray | None:
+        for frame in self.frames:
+            self.next_index += 1
+            if self.next_index - 1 == index:
+                return frame
+        return None
+
+    def close(self) -> None:
+        self.frames.close()
+
+
+_reader: _ForwardReader | None = None
+#: frames decoded by :func:`read_video_frame` since the process started (tests read it)
+decoded_frames = 0
+
+
 def read_video_frame(path: Path, index: int) -> np.ndarray:
     """Frame ``index`` (from 0) of the video at ``path``, (H, W, 3) BGR uint8, decoded in order
-    (seeking by frame number is not exact in every container).
+    (seeking by frame number is not exact in every container). The video is kept open: a later
+    frame of the same video continues from here; an earlier one, or another video, starts over.
 
     Raises:
         PipelineError: the video cannot be opened or is shorter than ``index + 1`` frames.
     """
-    for number, frame in enumerate(_frames(Path(path))):
-        if number == index:
-            return frame
-    raise PipelineError(f"{path}: has no frame {index}; the video changed since ingest")
+    global _reader, decoded_frames
+    path = Path(path)
+    if _reader is None or _reader.path != path or _reader.next_index > index:
+        if _reader is not None:
+            _reader.close()
+        _reader = _ForwardReader(path)
+    start = _reader.next_index
+    frame = _reader.read(index)
+    decoded_frames += _reader.next_index - start
+    if frame is None:
+        _reader.close()
+        _reader = None
+        raise PipelineError(f"{path}: has no frame {index}; the video changed since ingest")
+    return frame
 
 
 def _property(path: Path, which: int) -> float:
