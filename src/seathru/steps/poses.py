@@ -72,9 +72,7 @@ class Settings:
         "linear", help="resampling onto the undistorted pinhole cameras: cubic keeps the detail "
                        "(and the noise) bilinear smooths; see docs/water.md")
     camera_mode: CameraMode = setting(
-        "auto", help="one camera shared by all images (single), one per image size (per-size: "
-                     "a camera switched between 4:3 and 16:9), one per image, or auto: single "
-                     "when the images have one size, per-size otherwise")
+        "auto", help="one camera for all images, per image size, or per image; auto: per size")
     matcher: Matcher = setting(
         "sequential", help="sequential for ordered dive sets (transects, orbits), exhaustive "
                            "for small unordered sets")
