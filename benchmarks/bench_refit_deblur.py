@@ -22,7 +22,6 @@ Everything but the observed colour is held. Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 from pathlib import Path
@@ -30,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from bench_refit_decoding import trained_run
 from bench_refit_true_depth import true_ranges
 from machine import cpu_name
 
@@ -38,10 +38,8 @@ sys.path.insert(0, str(REPO / "src"))
 
 from seathru.io.cameras import read_cameras  # noqa: E402
 from seathru.io.images import read_image  # noqa: E402
-from seathru.io.model import load_model  # noqa: E402
 from seathru.io.stored_views import source_cameras, stored_image_on_frame  # noqa: E402
 from seathru.io.training import read_frame  # noqa: E402
-from seathru.io.water import read_truth_water  # noqa: E402
 from seathru.nerf import water_fit  # noqa: E402
 from seathru.nerf.rays import frame_rays  # noqa: E402
 from seathru.radiometry.deblur import deblurred, processing_blur  # noqa: E402
@@ -116,11 +114,7 @@ def main() -> None:
     pipeline = processing_blur("LINEAR", 1.0, "linear")
     undistortion = processing_blur(None, 1.0, "linear")
     for run in args.runs:
-        summary = json.loads((run / "evaluate" / "summary.json").read_text())
-        scale = float(summary["truth"]["metric_scale"]["scale"])
-        truth = read_truth_water(run / "simulate" / "truth" / "water.json").as_dict()
-        model = load_model(run / "train" / "model.pt", torch.device("cpu"))
-        model.eval()
+        scale, truth, model = trained_run(run)
         views = pixels(run, args.per_view)
 
         def recorded(frame, factor=1.0):

@@ -100,6 +100,17 @@ def observations(run: Path, model, folders: dict[str, Path], per_view: int, seed
             {k: torch.cat(v) for k, v in colours.items()})
 
 
+def trained_run(run: Path):
+    """A workflow run's metric scale (evaluate step), true water (by name) and trained model
+    (CPU, eval mode)."""
+    summary = json.loads((run / "evaluate" / "summary.json").read_text())
+    scale = float(summary["truth"]["metric_scale"]["scale"])
+    truth = read_truth_water(run / "simulate" / "truth" / "water.json").as_dict()
+    model = load_model(run / "train" / "model.pt", torch.device("cpu"))
+    model.eval()
+    return scale, truth, model
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
@@ -121,11 +132,7 @@ def main() -> None:
              "| run | observed colour | range | sigma_attn error | sigma_bs error |",
              "|---|---|---|---|---|"]
     for run in args.runs:
-        summary = json.loads((run / "evaluate" / "summary.json").read_text())
-        scale = float(summary["truth"]["metric_scale"]["scale"])
-        truth = read_truth_water(run / "simulate" / "truth" / "water.json").as_dict()
-        model = load_model(run / "train" / "model.pt", torch.device("cpu"))
-        model.eval()
+        scale, truth, model = trained_run(run)
         with tempfile.TemporaryDirectory(prefix="refit_decoding_") as work:
             folders = {name: ingest(run / "simulate" / "raw", Path(work) / name, name)
                        for name in args.decodings}
