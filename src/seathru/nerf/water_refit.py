@@ -119,10 +119,13 @@ class WaterRefitting:
         makes up for the rest; on surfaces the model already places well (opacity above
         ``medium.refit_opacity``), the same surface seen at several ranges pins the water
         down (``seathru.nerf.water_fit``). The fitted values replace the medium's and its
-        optimiser state is reset. Returns a record of what was done (for selection.json).
+        optimiser state is reset. Returns a record of what was done (for selection.json;
+        ``colours`` says whether the pixels' colours had the processing blur taken out).
         """
         model = self.model
-        record = {"step": self.step, "progress": round(self._progress(), 4)}
+        record = {"step": self.step, "progress": round(self._progress(), 4),
+                  "colours": "deblurred" if self.config.medium.refit_deblur and
+                  self.data.deblurred_rgb is not None else "as trained"}
         if model.medium.mode not in ("global", "veiling"):
             return {**record, "skipped": f"medium mode is {model.medium.mode}"}
         started = time.perf_counter()
