@@ -234,25 +234,22 @@ def _source_and_expected(camera, warp, texture):
 
 
 def test_image_blur_follows_how_each_image_was_decoded_resized_and_resampled():
-    class Ingest:
-        manifest = {"images": [
-            {"name": "raw", "kind": "raw", "decoder": {"demosaic": "LINEAR"},
-             "source_size": [400, 300]},
-            {"name": "binned", "kind": "raw", "decoder": {"demosaic": "half_size"},
-             "source_size": [200, 150]},
-            {"name": "jpeg", "kind": "srgb", "decoder": {}, "source_size": [200, 150]}]}
-
+    raw = {"name": "raw", "kind": "raw", "decoder": {"demosaic": "LINEAR"},
+           "source_size": [400, 300]}
+    binned = {"name": "binned", "kind": "raw", "decoder": {"demosaic": "half_size"},
+              "source_size": [200, 150]}
+    jpeg = {"name": "jpeg", "kind": "srgb", "decoder": {}, "source_size": [200, 150]}
     warped = undistortion(make_camera("SIMPLE_RADIAL", 200, 150, [150.0, 100.0, 75.0, 0.05]))
     straight = undistortion(make_camera("SIMPLE_PINHOLE", 200, 150, [150.0, 100.0, 75.0]))
     assert straight.map_x is None and warped.map_x is not None
     # a RAW decoded at 400 px wide, trained at 200: half the demosaic's blur, plus the warp's
-    assert image_blur(Ingest, "raw", warped, "linear") == processing_blur(
+    assert image_blur(raw, warped, "linear") == processing_blur(
         "LINEAR", warped.width / 400, "linear")
-    assert image_blur(Ingest, "raw", straight, "linear") == processing_blur("LINEAR", 0.5)
-    assert image_blur(Ingest, "binned", straight, "linear") == [0.0, 0.0, 0.0]
-    assert image_blur(Ingest, "jpeg", warped, "cubic") == [0.0, 0.0, 0.0]
-    assert image_blur(Ingest, "jpeg", warped, "linear") == processing_blur(None, 1.0, "linear")
-    assert image_blur(Ingest, "unlisted", warped, "linear") is None
+    assert image_blur(raw, straight, "linear") == processing_blur("LINEAR", 0.5)
+    assert image_blur(binned, straight, "linear") == [0.0, 0.0, 0.0]
+    assert image_blur(jpeg, warped, "cubic") == [0.0, 0.0, 0.0]
+    assert image_blur(jpeg, warped, "linear") == processing_blur(None, 1.0, "linear")
+    assert image_blur(None, warped, "linear") is None
 
 
 def test_cubic_undistortion_keeps_the_detail_bilinear_blurs():

@@ -53,13 +53,11 @@ def fill_bounds(views: list[PosedView], near: float | None, far: float | None,
             raise PipelineError(f"{view.name}: invalid bounds near={view.near}, far={view.far}")
 
 
-def image_blur(ingest: IngestFolder, name: str, warp: Undistortion,
+def image_blur(record: dict | None, warp: Undistortion,
                interpolation: Interpolation) -> list[float] | None:
     """The blur (Gaussian sigma per channel, pixels) the ingest's demosaic and the undistortion
-    put into view ``name``'s training image (``seathru.radiometry.deblur.processing_blur``);
-    None without a manifest record of the image (how it was decoded is not known)."""
-    manifest = ingest.manifest if isinstance(ingest.manifest, dict) else {}
-    record = next((r for r in manifest.get("images", []) if r.get("name") == name), None)
+    put into a view's training image (``seathru.radiometry.deblur.processing_blur``), from the
+    view's manifest ``record``; None without one (how it was decoded is not known)."""
     if record is None:
         return None
     demosaic = (record.get("decoder") or {}).get("demosaic") if record.get("kind") == "raw" \
@@ -130,7 +128,9 @@ def write_pose_outputs(dataset: PosedDataset, ingest: IngestFolder, out: Path,
                             f"{ingest.linear_dir}; do the names match?")
     fill_bounds(views, near, far, where)
     records, cache = _undistort(views, ingest, out, interpolation)
-    blur = {view.name: image_blur(ingest, view.name, warp, interpolation)
+    manifest = ingest.manifest if isinstance(ingest.manifest, dict) else {}
+    decoded = {image.get("name"): image for image in manifest.get("images", [])}
+    blur = {view.name: image_blur(decoded.get(view.name), warp, interpolation)
             for view, warp in records}
     c2w = np.array([view.c2w for view, _ in records])
     intrinsics = np.array([[[w.fx, 0, w.cx], [0, w.fy, w.cy], [0, 0, 1]] for _, w in records])
