@@ -120,8 +120,6 @@ class _ForwardReader:
 
 
 _reader: _ForwardReader | None = None
-#: frames decoded by :func:`read_video_frame` since the process started (tests read it)
-decoded_frames = 0
 
 
 def read_video_frame(path: Path, index: int) -> np.ndarray:
@@ -132,15 +130,13 @@ def read_video_frame(path: Path, index: int) -> np.ndarray:
     Raises:
         PipelineError: the video cannot be opened or is shorter than ``index + 1`` frames.
     """
-    global _reader, decoded_frames
+    global _reader
     path = Path(path)
     if _reader is None or _reader.path != path or _reader.next_index > index:
         if _reader is not None:
             _reader.close()
         _reader = _ForwardReader(path)
-    start = _reader.next_index
     frame = _reader.read(index)
-    decoded_frames += _reader.next_index - start
     if frame is None:
         _reader.close()
         _reader = None
