@@ -87,6 +87,23 @@ def test_fit_converges_alike_whatever_the_brightness_of_the_images(monkeypatch):
     assert evaluations[1] < 2 * evaluations[0] + 20, evaluations
 
 
+def test_a_fit_started_at_its_optimum_stops_there(monkeypatch):
+    # the later rounds of a refit start where the one before ended; they used to run to the
+    # evaluation limit (375) without moving the loss
+    import seathru.nerf.water_fit as water_fit
+
+    ranges, observed, ids, groups = _observations(np.random.default_rng(3), noise=1e-3)
+    first = fit_water(ranges, observed, ids, groups, START, balance_brightness=False)
+    calls = []
+    real = water_fit.projected_loss
+    monkeypatch.setattr(water_fit, "projected_loss", lambda *a: calls.append(1) or real(*a))
+    again = fit_water(ranges, observed, ids, groups, water_fit.water_start(first),
+                      balance_brightness=False)
+    assert len(calls) < 60, len(calls)
+    for key in KEYS:
+        assert np.allclose(getattr(again, key), getattr(first, key), rtol=1e-4), key
+
+
 def test_brightness_weights_count_groups_above_the_median_less_in_proportion():
     rng = np.random.default_rng(4)
     clean = torch.from_numpy(rng.uniform(0.0, 1.0, size=(201, 3)))

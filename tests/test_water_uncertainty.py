@@ -185,7 +185,8 @@ def test_grouping_comparison_is_the_move_of_the_fit_between_groupings():
     fit = fit_water(ranges, observed, ids, groups, START)
     same = robust_halfwidths(fit, ranges, observed, ids, groups,
                              regrouped=[(ranges, observed, ids, groups)])
-    assert max(same.splits["grouping"]) < 1e-6, "the same grouping cannot move the fit"
+    # (beyond where the fits stop: a loss change of 1e-10 of its start, water_fit's rule)
+    assert max(same.splits["grouping"]) < 1e-5, "the same grouping cannot move the fit"
     # pairs of surfaces of different colours merged into one group: a coarser grouping
     merged = ids // 2
     coarse = robust_halfwidths(fit, ranges, observed, ids, groups,
