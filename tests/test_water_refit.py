@@ -54,3 +54,21 @@ def test_open_water_counts_from_the_photographs_at_once_and_from_the_model_late(
         from_images, progress, expected):
     medium = MediumConfig(open_water_opacity=0.1, open_water_from=0.9)
     assert refit_open_water_opacity(medium, from_images, progress) == expected
+
+
+class _Clock(SimpleNamespace):
+    def _progress(self) -> float:
+        return self.progress
+
+
+def test_refit_points_passed_while_a_refit_ran_are_skipped_not_made_up():
+    from seathru.nerf.water_refit import WaterRefitting
+
+    trainer = _Clock(config=SimpleNamespace(medium=MediumConfig(refit_at=[0.15, 0.4, 0.7, 0.9])),
+                     water_refits=[{"step": 980, "accepted": {}}], step=981, progress=0.55)
+    WaterRefitting._skip_refits_passed_meanwhile(trainer)    # the refit due at 0.15 ran to 0.55
+    assert len(trainer.water_refits) == 2
+    assert trainer.water_refits[1]["step"] == 981 and "skipped" in trainer.water_refits[1]
+    trainer.progress = 0.6                                    # nothing new is due
+    WaterRefitting._skip_refits_passed_meanwhile(trainer)
+    assert len(trainer.water_refits) == 2

@@ -374,6 +374,9 @@ class Trainer(ModelSelection, WaterRefitting):
             if len(self.water_refits) < refits_due:
                 self.water_refits.append(self.refit_water())
                 self._take_snapshot()
+                self.elapsed_s = base_elapsed + (time.perf_counter() - run_start
+                                                 - self._eval_seconds)
+                self._skip_refits_passed_meanwhile()
             if self.view_selection is None and progress >= c.field.view_select_at:
                 self.view_selection = self.select_view_dependence()
                 self._say(f"step {self.step}: view-dependent colour "

@@ -111,6 +111,20 @@ class WaterRefitting:
                             medium.dark_pixel_bound, medium.balance_brightness,
                             medium.refit_trim)
 
+    def _skip_refits_passed_meanwhile(self) -> None:
+        """Record the refit points training passed while the last refit ran as skipped.
+
+        Progress follows the clock, so a refit that takes longer than the gap to the next
+        point (a short budget, a slow machine) would otherwise be followed by the next one
+        step after step, each on the same geometry (4x the refit rays on the demo: four
+        refits at steps 983-986, 2.8 of the 3 minutes).
+        """
+        progress = self._progress()
+        due = sum(1 for at in self.config.medium.refit_at if progress >= at)
+        while len(self.water_refits) < due:
+            self.water_refits.append({"step": self.step, "progress": round(progress, 4),
+                                      "skipped": "passed while the refit before it ran"})
+
     @torch.no_grad()
     def refit_water(self) -> dict:
         """Refit the global water to the training images on the model's own geometry.
