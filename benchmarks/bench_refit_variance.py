@@ -77,7 +77,9 @@ def weighted_residuals(attn, bs, c_med, ranges, observed, ids, groups, weights):
 
 def fit_weighted(ranges, observed, ids, groups, start: dict, weights, colour_max=1.5,
                  steps=300) -> dict:
-    """The water minimising the pixel-weighted squared residuals (L-BFGS, as ``fit_water``)."""
+    """The water minimising the pixel-weighted squared residuals (L-BFGS, as ``fit_water``,
+    run to the strict tolerances ``fit_water`` had before session 30, so that the comparison
+    is not about where the fits stop)."""
     def logit(c):
         c = min(max(c / colour_max, 1e-4), 1 - 1e-4)
         return math.log(c / (1 - c))

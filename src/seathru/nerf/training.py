@@ -344,6 +344,11 @@ class Trainer(ModelSelection, WaterRefitting):
         run_start = time.perf_counter()
         self._eval_seconds = 0.0  # held-out evaluation for the log: not training time
         base_elapsed, base_step = self.elapsed_s, self.step
+
+        def clock() -> float:
+            """Training seconds so far (held-out evaluations for the log left out)."""
+            return base_elapsed + (time.perf_counter() - run_start - self._eval_seconds)
+
         stopped_by = "steps"
         acc_loss = acc_mse = 0.0
         acc_n = 0
@@ -357,7 +362,7 @@ class Trainer(ModelSelection, WaterRefitting):
         while 0 < next_quality <= self.elapsed_s:
             next_quality *= 2.0
         while self.step < c.step_limit:
-            self.elapsed_s = base_elapsed + (time.perf_counter() - run_start - self._eval_seconds)
+            self.elapsed_s = clock()
             if self.elapsed_s >= budget:
                 stopped_by = "time"
                 break
@@ -374,8 +379,7 @@ class Trainer(ModelSelection, WaterRefitting):
             if len(self.water_refits) < refits_due:
                 self.water_refits.append(self.refit_water())
                 self._take_snapshot()
-                self.elapsed_s = base_elapsed + (time.perf_counter() - run_start
-                                                 - self._eval_seconds)
+                self.elapsed_s = clock()
                 self._skip_refits_passed_meanwhile()
             if self.view_selection is None and progress >= c.field.view_select_at:
                 self.view_selection = self.select_view_dependence()
@@ -406,7 +410,7 @@ class Trainer(ModelSelection, WaterRefitting):
             if self.step % c.snapshot_every == 0:
                 self._take_snapshot()
 
-            self.elapsed_s = base_elapsed + (time.perf_counter() - run_start - self._eval_seconds)
+            self.elapsed_s = clock()
             run_steps = self.step - base_step
             rate = run_steps / max(1e-9, time.perf_counter() - run_start)
             if self.callbacks.progress:
@@ -429,7 +433,7 @@ class Trainer(ModelSelection, WaterRefitting):
                 while next_quality <= self.elapsed_s:
                     next_quality *= 2.0
 
-        self.elapsed_s = base_elapsed + (time.perf_counter() - run_start - self._eval_seconds)
+        self.elapsed_s = clock()
         if self.view_selection is None:
             self.view_selection = {"requested": "auto", "chosen": "off",
                                    "reason": "the run ended before field.view_select_at: "

@@ -116,8 +116,8 @@ class WaterRefitting:
 
         Progress follows the clock, so a refit that takes longer than the gap to the next
         point (a short budget, a slow machine) would otherwise be followed by the next one
-        step after step, each on the same geometry (4x the refit rays on the demo: four
-        refits at steps 983-986, 2.8 of the 3 minutes).
+        step after step, each on the same geometry, spending the budget on refits
+        (docs/water.md, "The fits stop where the loss stops moving").
         """
         progress = self._progress()
         due = sum(1 for at in self.config.medium.refit_at if progress >= at)
