@@ -310,6 +310,21 @@ def test_open_water_rays_pay_for_object_opacity_while_the_veiling_light_varies()
         assert loss(0.5) == pytest.approx(loss(0.0), rel=1e-6)
 
 
+def test_a_refit_point_passed_while_a_refit_ran_is_skipped(default_scene, monkeypatch):
+    # a refit that outlasts the gap to the next point: the next is not made up a step later
+    trainer = _small_trainer(default_scene, steps=0, max_minutes=0.04,
+                             medium={"mode": "global", "refit_at": [0.2, 0.3, 0.95]})
+
+    def slow_refit():
+        time.sleep(0.8)                     # a third of the 2.4-s budget
+        return {"step": trainer.step, "accepted": {}}
+
+    monkeypatch.setattr(trainer, "refit_water", slow_refit)
+    trainer.run()
+    assert ["skipped" in r for r in trainer.water_refits] == [False, True, False]
+    assert trainer.water_refits[1]["step"] == trainer.water_refits[0]["step"]
+
+
 @pytest.mark.parametrize("hold", [True, False])
 def test_water_a_refit_determined_is_held_there(default_scene, hold):
     trainer = _small_trainer(default_scene, medium={"mode": "global", "hold_refitted": hold})
