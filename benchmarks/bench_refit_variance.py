@@ -38,7 +38,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from bench_refit_decoding import trained_run
 from machine import cpu_name
@@ -80,37 +79,17 @@ def fit_weighted(ranges, observed, ids, groups, start: dict, weights, colour_max
     """The water minimising the pixel-weighted squared residuals (L-BFGS, as ``fit_water``,
     run to the strict tolerances ``fit_water`` had before session 30, so that the comparison
     is not about where the fits stop)."""
-    def logit(c):
-        c = min(max(c / colour_max, 1e-4), 1 - 1e-4)
-        return math.log(c / (1 - c))
-    raw = torch.tensor([water_fit._inverse_softplus(v) for v in start["sigma_attn"]]
-                       + [water_fit._inverse_softplus(v) for v in start["sigma_bs"]]
-                       + [logit(c) for c in start["c_med"]], dtype=torch.float64,
-                       requires_grad=True)
-
-    def water():
-        return F.softplus(raw[:3]), F.softplus(raw[3:6]), torch.sigmoid(raw[6:]) * colour_max
+    raw = water_fit.water_raw(start, colour_max)
 
     def objective():
-        residual = weighted_residuals(*water(), ranges, observed, ids, groups, weights)[0]
+        residual = weighted_residuals(*water_fit.water_of_raw(raw, colour_max), ranges,
+                                      observed, ids, groups, weights)[0]
         return (residual ** 2 * weights).mean()
 
+    water_fit.minimise_relative(raw, objective, steps, tolerance_change=1e-16,
+                                tolerance_grad=1e-12)
     with torch.no_grad():
-        scale = max(float(objective()), 1e-30)
-    optimiser = torch.optim.LBFGS([raw], lr=1.0, max_iter=steps, history_size=20,
-                                  tolerance_grad=1e-12, tolerance_change=1e-16,
-                                  line_search_fn="strong_wolfe")
-
-    def closure():
-        optimiser.zero_grad()
-        loss = objective() / scale
-        loss.backward()
-        return loss
-
-    with torch.enable_grad():
-        optimiser.step(closure)
-    with torch.no_grad():
-        return dict(zip(KEYS, (t.tolist() for t in water())))
+        return dict(zip(KEYS, (t.tolist() for t in water_fit.water_of_raw(raw, colour_max))))
 
 
 def variance_weights(water: dict, ranges, observed, ids, groups, weights, bins: int = 12):

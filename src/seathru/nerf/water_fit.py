@@ -619,40 +619,40 @@ LBFGS_TOLERANCE_CHANGE = 1e-10
 LBFGS_TOLERANCE_GRAD = 1e-9
 
 
-def _fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start: dict,
-               steps: int, colour_max: float, dark: tuple[Tensor, Tensor] | None = None,
-               dark_weight: float = 10.0, weights: Tensor | None = None) -> WaterFit:
-    """One L-BFGS fit of :func:`fit_water` with fixed group ``weights`` (or none)."""
+def water_raw(start: dict, colour_max: float, device=None) -> Tensor:
+    """(9,) float64 unconstrained parameters of the water ``start`` (values per channel or one
+    for all): softplus for the two coefficients, a logistic in (0, colour_max) for ``c_med``;
+    :func:`water_of_raw` inverts it."""
     def triple(value) -> list[float]:
         return [float(value)] * 3 if isinstance(value, (int, float)) else [float(v) for v in value]
 
     colour = [min(max(c / colour_max, 1e-4), 1 - 1e-4) for c in triple(start["c_med"])]
-    raw = torch.tensor([_inverse_softplus(v) for v in triple(start["sigma_attn"])]
-                       + [_inverse_softplus(v) for v in triple(start["sigma_bs"])]
-                       + [math.log(c / (1 - c)) for c in colour],
-                       dtype=torch.float64, device=ranges.device, requires_grad=True)
-    ranges, observed = ranges.double(), observed.double()
-    optimiser = torch.optim.LBFGS([raw], lr=1.0, max_iter=max(1, steps), history_size=20,
-                                  tolerance_grad=LBFGS_TOLERANCE_GRAD,
-                                  tolerance_change=LBFGS_TOLERANCE_CHANGE,
-                                  line_search_fn="strong_wolfe")
+    return torch.tensor([_inverse_softplus(v) for v in triple(start["sigma_attn"])]
+                        + [_inverse_softplus(v) for v in triple(start["sigma_bs"])]
+                        + [math.log(c / (1 - c)) for c in colour],
+                        dtype=torch.float64, device=device, requires_grad=True)
 
-    def water() -> tuple[Tensor, Tensor, Tensor]:
-        return F.softplus(raw[0:3]), F.softplus(raw[3:6]), torch.sigmoid(raw[6:9]) * colour_max
 
-    if dark is not None:
-        dark = (dark[0].double().to(ranges.device), dark[1].double().to(ranges.device))
+def water_of_raw(raw: Tensor, colour_max: float) -> tuple[Tensor, Tensor, Tensor]:
+    """``sigma_attn``, ``sigma_bs``, ``c_med`` (3 each) of :func:`water_raw`'s parameters."""
+    return F.softplus(raw[0:3]), F.softplus(raw[3:6]), torch.sigmoid(raw[6:9]) * colour_max
 
-    def objective() -> Tensor:
-        attn, bs, c_med = water()
-        loss = projected_loss(attn, bs, c_med, ranges, observed, ids, groups, weights)
-        if dark is not None:
-            loss = loss + dark_weight * dark_excess(bs, c_med, dark)
-        return loss
 
-    # L-BFGS's tolerances are absolute and the loss is a small mean squared residual, so it
-    # is measured relative to its start value. Unscaled, refits on the demo ran to the
-    # evaluation limit (375 evaluations, 4.6 s) and ended above the scaled fit's loss (0.9 s).
+def minimise_relative(raw: Tensor, objective, steps: int,
+                      tolerance_change: float | None = None,
+                      tolerance_grad: float | None = None) -> None:
+    """Minimise ``objective()`` over ``raw`` in place by L-BFGS, on the loss relative to its
+    start value (default tolerances: ``LBFGS_TOLERANCE_CHANGE`` and ``_GRAD``).
+
+    L-BFGS's tolerances are absolute and the loss is a small mean squared residual, so it is
+    measured relative to its start value. Unscaled, refits on the demo ran to the evaluation
+    limit (375 evaluations, 4.6 s) and ended above the scaled fit's loss (0.9 s).
+    """
+    optimiser = torch.optim.LBFGS(
+        [raw], lr=1.0, max_iter=max(1, steps), history_size=20,
+        tolerance_grad=LBFGS_TOLERANCE_GRAD if tolerance_grad is None else tolerance_grad,
+        tolerance_change=LBFGS_TOLERANCE_CHANGE if tolerance_change is None
+        else tolerance_change, line_search_fn="strong_wolfe")
     with torch.no_grad():
         scale = max(float(objective()), 1e-30)
 
@@ -664,8 +664,27 @@ def _fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start
 
     with torch.enable_grad():
         optimiser.step(closure)
+
+
+def _fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start: dict,
+               steps: int, colour_max: float, dark: tuple[Tensor, Tensor] | None = None,
+               dark_weight: float = 10.0, weights: Tensor | None = None) -> WaterFit:
+    """One L-BFGS fit of :func:`fit_water` with fixed group ``weights`` (or none)."""
+    raw = water_raw(start, colour_max, ranges.device)
+    ranges, observed = ranges.double(), observed.double()
+    if dark is not None:
+        dark = (dark[0].double().to(ranges.device), dark[1].double().to(ranges.device))
+
+    def objective() -> Tensor:
+        attn, bs, c_med = water_of_raw(raw, colour_max)
+        loss = projected_loss(attn, bs, c_med, ranges, observed, ids, groups, weights)
+        if dark is not None:
+            loss = loss + dark_weight * dark_excess(bs, c_med, dark)
+        return loss
+
+    minimise_relative(raw, objective, steps)
     with torch.no_grad():
-        attn, bs, c_med = water()
+        attn, bs, c_med = water_of_raw(raw, colour_max)
         loss = float(projected_loss(attn, bs, c_med, ranges, observed, ids, groups, weights))
     return WaterFit(attn.tolist(), bs.tolist(), c_med.tolist(), loss, int(len(ranges)), groups,
                     weights)
