@@ -377,6 +377,38 @@ def test_each_source_reaches_its_images_and_poses(tmp_path):
     assert value(argv("ingest", "sim"), "--subdir") == "raw"
 
 
+def test_paths_with_spaces_reach_every_step_whole(tmp_path):
+    """A dive folder named as people name them ("Dive 3 - reef") and a results folder with a
+    space in it: every path of every step's shell line parses back whole."""
+    folder = tmp_path / "Dive 3 - reef"
+    folder.mkdir()
+    results, logs = tmp_path / "my results", tmp_path / "my logs"
+    sheet = _sheet(tmp_path, [f"reef\timages\t{folder}\t", f"cm\tcolmap\t{folder}\t",
+                              "sim\tsimulated\t\t"])
+    result = snakemake("-n", "-p", "--cores", "1", "--forceall", "--config",
+                       f"datasets={sheet}", f"results={results}", f"logs={logs}")
+    assert result.returncode == 0, result.stderr[-3000:]
+    commands = _shell_commands(result.stdout)
+    assert {step for step, _ in commands} >= {"ingest", "poses", "train", "render", "evaluate",
+                                              "report"}, sorted(commands)
+    for (step, dataset), command in commands.items():
+        line, _, redirect = command.partition(" > ")
+        argv = shlex.split(line)
+        log = shlex.split(redirect)
+        assert len(log) == 2 and log[1] == "2>&1" and log[0].startswith(str(logs)), command
+        out = argv[argv.index("--out") + 1]
+        assert out.startswith(str(results)), (step, out)
+        for flag in ("--input", "--ingest", "--cameras", "--model", "--renders", "--train-dir",
+                     "--checkpoint-dir", "--poses", "--results", "--logs"):
+            if flag in argv:
+                value = argv[argv.index(flag) + 1]
+                assert value.startswith((str(results), str(folder), str(logs))), (step, value)
+    ingest = shlex.split(commands[("ingest", "reef")].split(" > ")[0])
+    assert ingest[ingest.index("--input") + 1] == str(folder)
+    poses = shlex.split(commands[("poses", "cm")].split(" > ")[0])
+    assert poses[poses.index("--source-dir") + 1] == str(folder)
+
+
 def test_steps_find_the_seathru_command_without_an_activated_environment(tmp_path):
     """`.venv/bin/snakemake` with the environment not on PATH: the steps still find `seathru`
     (they failed with "seathru: command not found")."""

@@ -26,7 +26,7 @@ rule evaluate:
     conda:
         "../../envs/seathru.yaml"
     shell:
-        "seathru evaluate --renders {input.renders} --cameras {input.poses}/cameras.json "
-        "--train-dir {params.train_dir} {params.truth} --out {params.out} --threads {threads} "
+        "seathru evaluate --renders {input.renders:q} --cameras {input.poses:q}/cameras.json "
+        "--train-dir {params.train_dir:q} {params.truth} --out {params.out:q} --threads {threads} "
         "{params.flags} "
-        "> {log} 2>&1"
+        "> {log:q} 2>&1"

@@ -20,4 +20,4 @@ rule export:
     conda:
         "../../envs/seathru.yaml"
     shell:
-        "seathru export --poses {input} --out {params.out} {params.flags} > {log} 2>&1"
+        "seathru export --poses {input:q} --out {params.out:q} {params.flags} > {log:q} 2>&1"

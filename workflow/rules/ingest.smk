@@ -19,5 +19,5 @@ rule ingest:
     conda:
         "../../envs/seathru.yaml"
     shell:
-        "seathru ingest --input {input} --out {output} --workers {threads} {params.source} "
-        "{params.flags} > {log} 2>&1"
+        "seathru ingest --input {input:q} --out {output:q} --workers {threads} {params.source} "
+        "{params.flags} > {log:q} 2>&1"

@@ -19,5 +19,5 @@ rule poses:
     conda:
         "../../envs/seathru.yaml"
     shell:
-        "seathru poses --ingest {input} --out {output} --threads {threads} {params.source} "
-        "{params.flags} > {log} 2>&1"
+        "seathru poses --ingest {input:q} --out {output:q} --threads {threads} {params.source} "
+        "{params.flags} > {log:q} 2>&1"

@@ -17,5 +17,5 @@ rule render:
     conda:
         "../../envs/seathru.yaml"
     shell:
-        "seathru render --model {input.model} --cameras {input.poses}/cameras.json "
-        "--out {output} --threads {threads} {params.flags} > {log} 2>&1"
+        "seathru render --model {input.model:q} --cameras {input.poses:q}/cameras.json "
+        "--out {output:q} --threads {threads} {params.flags} > {log:q} 2>&1"

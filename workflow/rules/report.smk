@@ -33,5 +33,5 @@ rule report:
     conda:
         "../../envs/seathru.yaml"
     shell:
-        "seathru report --results {params.results} --datasets {input.sheet} "
-        "--logs {params.logs} --out {params.out} {params.variants} {params.flags} > {log} 2>&1"
+        "seathru report --results {params.results:q} --datasets {input.sheet:q} "
+        "--logs {params.logs:q} --out {params.out:q} {params.variants} {params.flags} > {log:q} 2>&1"

@@ -16,4 +16,4 @@ rule simulate:
     conda:
         "../../envs/seathru.yaml"
     shell:
-        "seathru simulate --out {output} {params.flags} > {log} 2>&1"
+        "seathru simulate --out {output:q} {params.flags} > {log:q} 2>&1"

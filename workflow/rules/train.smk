@@ -21,5 +21,5 @@ rule train:
     conda:
         "../../envs/seathru.yaml"
     shell:
-        "seathru train --cameras {input}/cameras.json --out {params.out} "
-        "--checkpoint-dir {params.checkpoints} --threads {threads} {params.flags} > {log} 2>&1"
+        "seathru train --cameras {input:q}/cameras.json --out {params.out:q} "
+        "--checkpoint-dir {params.checkpoints:q} --threads {threads} {params.flags} > {log:q} 2>&1"
