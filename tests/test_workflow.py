@@ -409,6 +409,28 @@ def test_paths_with_spaces_reach_every_step_whole(tmp_path):
     assert poses[poses.index("--source-dir") + 1] == str(folder)
 
 
+def test_sheet_paths_read_home_and_environment_variables(tmp_path, monkeypatch):
+    """``~/dives/reef`` and ``$SCRATCH/reef`` in the sheet's path column, as a shell reads
+    them; a variable that is not set is named in the error."""
+    home, scratch = tmp_path / "home", tmp_path / "scratch"
+    (home / "dives" / "reef").mkdir(parents=True)
+    (scratch / "reef").mkdir(parents=True)
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.setenv("SCRATCH", str(scratch))
+    monkeypatch.delenv("SEATHRU_NOT_SET", raising=False)
+    sheet = _sheet(tmp_path, ["home\timages\t~/dives/reef\t", "cluster\traw\t$SCRATCH/reef\t"])
+    result = snakemake("-n", "-p", "--cores", "1", "--forceall", "--config", f"datasets={sheet}")
+    assert result.returncode == 0, result.stderr[-3000:]
+    commands = _shell_commands(result.stdout)
+    for dataset, folder in (("home", home / "dives" / "reef"), ("cluster", scratch / "reef")):
+        ingest = shlex.split(commands[("ingest", dataset)].split(" > ")[0])
+        assert ingest[ingest.index("--input") + 1] == str(folder)
+    unset = _sheet(tmp_path, ["lost\timages\t$SEATHRU_NOT_SET/reef\t"])
+    result = snakemake("-n", "--cores", "1", "--config", f"datasets={unset}")
+    assert result.returncode != 0
+    assert "environment variable SEATHRU_NOT_SET is not set" in result.stdout + result.stderr
+
+
 def test_steps_find_the_seathru_command_without_an_activated_environment(tmp_path):
     """`.venv/bin/snakemake` with the environment not on PATH: the steps still find `seathru`
     (they failed with "seathru: command not found")."""

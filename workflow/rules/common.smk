@@ -345,6 +345,9 @@ def load_sheet(path, config):
     if missing:
         raise SheetError(f"{path}: missing column {missing[0]!r}; the sheet needs the columns "
                          "dataset, source, path, options (tab-separated)")
+    # ~ and environment variables ($SCRATCH/dives on a cluster) as a shell would read them
+    sheet["path"] = [os.path.expandvars(os.path.expanduser(p)) if p else p
+                     for p in sheet["path"]]
     options, runs = {}, {}
     for index, row in sheet.iterrows():
         where = f"{path} row {index + 2} (dataset {row['dataset']!r})"
@@ -355,7 +358,11 @@ def load_sheet(path, config):
             raise SheetError(f"{where}: field 'dataset': use letters, digits, '_', '.', '-'")
         validate(pd.DataFrame([row]), schema="../schemas/datasets.schema.yaml")
         if row["source"] != "simulated" and not Path(row["path"]).exists():
-            raise SheetError(f"{where}: field 'path': {row['path']!r} does not exist")
+            unset = re.findall(r"\$\{?(\w+)", row["path"])
+            hint = (f" (the environment variable {unset[0]} is not set)" if unset else
+                    f" (relative paths are read from the working folder {os.getcwd()})"
+                    if not Path(row["path"]).is_absolute() else "")
+            raise SheetError(f"{where}: field 'path': {row['path']!r} does not exist{hint}")
         options[row["dataset"]] = parse_options(row["options"], where)
         check_dataset_options(config, options[row["dataset"]], where, CONFIG_SCHEMA)
         if "sweep" in sheet.columns:
