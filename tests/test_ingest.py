@@ -877,3 +877,18 @@ def test_a_camera_cards_folders_are_named_and_read_with_images_all(tmp_path):
         "DCIM__101GOPRO__G0003", "DCIM__101GOPRO__G0004"]
     assert image_subfolders(card) == [("DCIM/100GOPRO", 2), ("DCIM/101GOPRO", 3)]
     assert image_subfolders(card, depth=1) == []
+
+
+@pytest.mark.parametrize(("name", "expected"), [
+    ("dive.zip", "an archive, not a folder: unpack it"),
+    ("notes.txt", "a file, not a folder"),
+    ("absent", "folder not found"),
+])
+def test_an_input_that_is_no_folder_says_what_it_is(tmp_path, name, expected):
+    given = tmp_path / name
+    if name != "absent":
+        given.write_bytes(b"PK\x03\x04" if name.endswith(".zip") else b"x")
+    for layout in (None, "llff"):
+        argv = ["--input", given, "--out", tmp_path / "out"]
+        with pytest.raises(PipelineError, match=expected):
+            run_ingest(*argv, *(["--layout", layout] if layout else []))

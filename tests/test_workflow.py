@@ -431,6 +431,17 @@ def test_sheet_paths_read_home_and_environment_variables(tmp_path, monkeypatch):
     assert "environment variable SEATHRU_NOT_SET is not set" in result.stdout + result.stderr
 
 
+def test_a_sheet_path_to_an_archive_or_a_file_is_refused_saying_so(tmp_path):
+    archive, image = tmp_path / "dive.zip", tmp_path / "one.jpg"
+    archive.write_bytes(b"PK\x03\x04")
+    image.write_bytes(b"\xff\xd8")
+    for path, expected in ((archive, "is an archive: unpack it"), (image, "is a file: give")):
+        sheet = _sheet(tmp_path, [f"d1\timages\t{path}\t"])
+        result = snakemake("-n", "--cores", "1", "--config", f"datasets={sheet}")
+        assert result.returncode != 0
+        assert f"field 'path': '{path}' {expected}" in result.stdout + result.stderr
+
+
 def test_steps_find_the_seathru_command_without_an_activated_environment(tmp_path):
     """`.venv/bin/snakemake` with the environment not on PATH: the steps still find `seathru`
     (they failed with "seathru: command not found")."""

@@ -13,6 +13,8 @@ import yaml
 from snakemake.utils import validate
 
 SOURCES = ("simulated", "raw", "images", "llff", "colmap", "nerfstudio")
+# the same as seathru.io.dataset_readers.ARCHIVE_SUFFIXES (the workflow does not import the package)
+ARCHIVE_SUFFIXES = (".zip", ".tar", ".tgz", ".gz", ".bz2", ".xz", ".7z", ".rar")
 STEPS = ("simulate", "ingest", "poses", "export", "train", "render", "evaluate", "report")
 # Flags the workflow sets itself in each step's shell line; neither a dataset's options nor
 # the config may set them. Thread counts (`threads`, `workers`) come from `resources`.
@@ -363,6 +365,11 @@ def load_sheet(path, config):
                     f" (relative paths are read from the working folder {os.getcwd()})"
                     if not Path(row["path"]).is_absolute() else "")
             raise SheetError(f"{where}: field 'path': {row['path']!r} does not exist{hint}")
+        if row["source"] != "simulated" and not Path(row["path"]).is_dir():
+            archive = row["path"].lower().endswith(ARCHIVE_SUFFIXES)
+            raise SheetError(f"{where}: field 'path': {row['path']!r} is "
+                             + ("an archive: unpack it and give the folder that holds the images"
+                                if archive else "a file: give the folder that holds the images"))
         options[row["dataset"]] = parse_options(row["options"], where)
         check_dataset_options(config, options[row["dataset"]], where, CONFIG_SCHEMA)
         if "sweep" in sheet.columns:

@@ -499,6 +499,19 @@ def read_source_mask(path: str | Path, width: int, height: int) -> np.ndarray:
                       interpolation=cv2.INTER_NEAREST).astype(bool)
 
 
+ARCHIVE_SUFFIXES = (".zip", ".tar", ".tgz", ".gz", ".bz2", ".xz", ".7z", ".rar")
+
+
+def not_a_folder(path: Path) -> str:
+    """Why ``path`` cannot be read as a dataset folder, and what to do, for an error message."""
+    if not path.exists():
+        return "folder not found (check the sheet's path column)"
+    if path.name.lower().endswith(ARCHIVE_SUFFIXES):
+        return ("an archive, not a folder: unpack it and point the sheet's path at the folder "
+                "that holds the images")
+    return "a file, not a folder: point the sheet's path at the folder that holds the images"
+
+
 def layout_images(layout: str, root: Path, images: str = "auto") -> LayoutImages:
     """The image files of the ``layout`` (one of :data:`LAYOUTS`) dataset in ``root``.
 
@@ -510,7 +523,7 @@ def layout_images(layout: str, root: Path, images: str = "auto") -> LayoutImages
     """
     root = Path(root)
     if not root.is_dir():
-        raise PipelineError(f"{root}: dataset folder not found")
+        raise PipelineError(f"{root}: {not_a_folder(root)}")
     if layout == "llff":
         folder, reason = llff_image_folder(root, images)
         files = [(path, name) for path, name in zip(

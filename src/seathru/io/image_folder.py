@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, TypedDict
 
 from seathru.errors import PipelineError
-from seathru.io.dataset_readers import layout_images
+from seathru.io.dataset_readers import layout_images, not_a_folder
 from seathru.io.raw import KINDS, detect_kind
 from seathru.io.video import VideoFrames, is_video
 
@@ -32,7 +32,7 @@ class RejectedFile(TypedDict):
 def resolve_input(folder: Path, subdir: str | None) -> Path:
     """The image folder: ``folder/subdir`` (case-insensitive match of ``subdir``) or ``folder``."""
     if not folder.is_dir():
-        raise PipelineError(f"--input {folder}: folder not found")
+        raise PipelineError(f"--input {folder}: {not_a_folder(folder)}")
     if not subdir:
         return folder
     exact = folder / subdir
