@@ -13,7 +13,7 @@ import yaml
 from snakemake.utils import validate
 
 SOURCES = ("simulated", "raw", "images", "llff", "colmap", "nerfstudio")
-# the same as seathru.io.dataset_readers.ARCHIVE_SUFFIXES (the workflow does not import the package)
+# as seathru.io.dataset_readers.ARCHIVE_SUFFIXES (the workflow does not import the package)
 ARCHIVE_SUFFIXES = (".zip", ".tar", ".tgz", ".gz", ".bz2", ".xz", ".7z", ".rar")
 STEPS = ("simulate", "ingest", "poses", "export", "train", "render", "evaluate", "report")
 # Flags the workflow sets itself in each step's shell line; neither a dataset's options nor
