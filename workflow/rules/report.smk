@@ -34,4 +34,5 @@ rule report:
         "../../envs/seathru.yaml"
     shell:
         "seathru report --results {params.results:q} --datasets {input.sheet:q} "
-        "--logs {params.logs:q} --out {params.out:q} {params.variants} {params.flags} > {log:q} 2>&1"
+        "--logs {params.logs:q} --out {params.out:q} {params.variants} {params.flags} "
+        "> {log:q} 2>&1"
