@@ -107,3 +107,6 @@ def test_pose_warnings_from_the_report():
         == 0.4
     # ingest named the other one missing already
     assert by_code["posed_without_image"]["details"]["frames"] == ["gone"]
+    # an image COLMAP did not register has no pose: one warning, not two
+    once = pose_warnings(_report(unregistered=["b", "c"], linear_images_without_pose=["b", "c"]))
+    assert [w["code"] for w in once] == ["unregistered_images"]

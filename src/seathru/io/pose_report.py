@@ -180,7 +180,8 @@ def pose_warnings(report: AnyPoseReport, layout: dict | None = None) -> list[Ste
             "poses", "posed_without_image", f"{len(without_image)} posed frame(s) have no "
             f"ingested image and are left out: " + ", ".join(without_image[:10])
             + (" ..." if len(without_image) > 10 else ""), frames=without_image))
-    without_pose = report["linear_images_without_pose"]
+    # COLMAP's unregistered images have no pose either: said once, above
+    without_pose = [n for n in report["linear_images_without_pose"] if n not in unregistered]
     if without_pose:
         found.append(step_warning(
             "poses", "images_without_pose", f"{len(without_pose)} image(s) have no pose in "
