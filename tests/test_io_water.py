@@ -138,3 +138,29 @@ def test_open_water_below_the_horizon_is_written_with_its_least_surface_range(tm
                                                              "open_water_beyond": None})
     assert "open_water_below_horizon" not in plain.to_dict()["uncertainty"]
     assert "horizon" not in plain.undetermined_message()
+
+
+def test_water_per_metre_where_the_camera_file_knows_the_scale(tmp_path):
+    half = {k: [0.01, 0.5, 0.02] for k in ("sigma_attn", "sigma_bs", "c_med")}
+    assessment = {"halfwidth95": half, "determined": {k: [True, False, True] for k in half},
+                  "surface_fit": {k: list(GLOBAL_PARAMS[k]) for k in half},
+                  "pixels": 1000, "groups": 50}
+    scale, metres = 0.5, 0.25          # a source unit (COLMAP's) is 25 cm
+    report = WaterReport.from_parameters(GLOBAL_PARAMS, scale, assessment, metres)
+    data = report.to_dict()
+    assert data["metres_per_source_unit"] == metres
+    for key in ("sigma_attn", "sigma_bs"):
+        assert data["per_metre"][key] == pytest.approx(
+            [v * scale / metres for v in GLOBAL_PARAMS[key]])
+        for per_metre, per_unit in zip(data["per_metre"]["interval95"][key],
+                                       data["uncertainty"]["interval95"][key]):
+            assert per_metre == pytest.approx([None if v is None else v / metres
+                                               for v in per_unit])
+    write_water(tmp_path / "water.json", report)
+    assert read_water(tmp_path / "water.json") == report
+    # unknown scale: no per-metre numbers at all, rather than per-unit ones called metres
+    assert "per_metre" not in WaterReport.from_parameters(GLOBAL_PARAMS, scale).to_dict()
+    data["metres_per_source_unit"] = -1.0
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    with pytest.raises(PipelineError, match="metres_per_source_unit must be a positive"):
+        read_water(tmp_path / "bad.json")

@@ -790,3 +790,36 @@ def test_pixel_of_points_finds_the_pixel_whose_ray_passes_through_the_point(
     assert (rows[0], columns[0], bool(inside[0])) == (row, column, True)
     assert np.linalg.norm(local[0]) == pytest.approx(distance, rel=1e-9)
     assert not inside[1] and (rows[1], columns[1]) == (0, 0)
+
+
+def _nerfstudio_poses(tmp_path: Path, name: str, *flags: str) -> Path:
+    """The poses step on three nerfstudio frames 1 unit apart; its output folder."""
+    ingest = tmp_path / "ingest"
+    (ingest / "linear").mkdir(parents=True, exist_ok=True)
+    frames = []
+    for i in range(3):
+        c2w = np.eye(4)
+        c2w[0, 3] = float(i)
+        frames.append({"file_path": f"images/f{i}.png", "transform_matrix": c2w.tolist()})
+        cv2.imwrite(str(ingest / "linear" / f"f{i}.png"), np.full((30, 40, 3), 90, np.uint8))
+    (tmp_path / "transforms.json").write_text(json.dumps(
+        {"fl_x": 40.0, "fl_y": 40.0, "cx": 20.0, "cy": 15.0, "w": 40, "h": 30,
+         "frames": frames}))
+    out = tmp_path / name
+    args = build_parser().parse_args(
+        ["poses", "--ingest", str(ingest), "--out", str(out), "--source", "nerfstudio",
+         "--source-dir", str(tmp_path), "--near", "0.5", "--far", "5", *flags])
+    args._run(args)
+    return out
+
+
+def test_a_known_metric_scale_goes_into_the_camera_file(tmp_path):
+    scaled = read_cameras(_nerfstudio_poses(tmp_path, "scaled", "--metres-per-unit", "0.25")
+                          / "cameras.json")
+    assert scaled.metres_per_source_unit == 0.25
+    plain = _nerfstudio_poses(tmp_path, "plain")
+    assert read_cameras(plain / "cameras.json").metres_per_source_unit is None
+    assert "metres_per_source_unit" not in json.loads(
+        (plain / "cameras.json").read_text())["normalisation"]
+    with pytest.raises(PipelineError, match="metres-per-unit must be positive"):
+        _nerfstudio_poses(tmp_path, "negative", "--metres-per-unit", "-1")

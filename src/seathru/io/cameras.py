@@ -5,7 +5,10 @@
     {
       "format": "seathru-cameras/1",
       "convention": "...",                 # human-readable statement of the conventions below
-      "normalisation": {"centre": [x, y, z], "scale": s},
+      "normalisation": {"centre": [x, y, z], "scale": s,
+                        "metres_per_source_unit": m},   # optional: the source's metric scale
+                                                        # (simulator's cameras: 1; COLMAP's: as
+                                                        # the user gave it); absent: not known
       "near": float, "far": float,         # scene-wide bounds, normalised units
       "source": "simulated|colmap|llff|nerfstudio",
       "frames": [
@@ -88,6 +91,7 @@ class CameraSet:
     scale: float = 1.0
     source: str = "unknown"
     root: Path | None = None  # folder of the camera file; image paths are relative to it
+    metres_per_source_unit: float | None = None  # the source's metric scale, where known
 
     def split(self, which: str) -> list[Frame]:
         return [f for f in self.frames if f.split == which]
@@ -102,7 +106,9 @@ class CameraSet:
         return {
             "format": FORMAT,
             "convention": CONVENTION,
-            "normalisation": {"centre": [float(c) for c in self.centre], "scale": float(self.scale)},
+            "normalisation": {"centre": [float(c) for c in self.centre], "scale": float(self.scale),
+                              **({} if self.metres_per_source_unit is None else
+                                 {"metres_per_source_unit": float(self.metres_per_source_unit)})},
             "near": float(self.near),
             "far": float(self.far),
             "source": self.source,
@@ -149,4 +155,14 @@ def read_cameras(path: str | os.PathLike) -> CameraSet:
     return CameraSet(frames=frames, near=float(data["near"]), far=float(data["far"]),
                      centre=list(norm.get("centre", [0.0, 0.0, 0.0])),
                      scale=float(norm.get("scale", 1.0)), source=data.get("source", "unknown"),
-                     root=path.parent)
+                     root=path.parent, metres_per_source_unit=_positive_or_none(
+                         norm.get("metres_per_source_unit"), path))
+
+
+def _positive_or_none(value, path: Path) -> float | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+        raise PipelineError(f"{path}: normalisation.metres_per_source_unit must be a positive "
+                            f"number, found {value!r}; re-run the 'poses' step")
+    return float(value)

@@ -102,13 +102,15 @@ def _undistort(views: list[PosedView], ingest: IngestFolder, out: Path,
 def write_pose_outputs(dataset: PosedDataset, ingest: IngestFolder, out: Path,
                        near: float | None = None, far: float | None = None,
                        test_every: int = 8, where: str = "",
-                       interpolation: Interpolation = "linear") -> OutputSummary:
+                       interpolation: Interpolation = "linear",
+                       metres_per_unit: float | None = None) -> OutputSummary:
     """Undistort the linear images and masks, normalise, write ``cameras.json``.
 
     Views without a linear image, and linear images without a pose, are left out (with a
     warning). ``near`` / ``far`` override every frame's depth bounds (source units); ``where``
     names the source in error messages; ``interpolation`` resamples the images onto the
-    undistorted cameras (``Undistortion.warp_image``).
+    undistorted cameras (``Undistortion.warp_image``); ``metres_per_unit``: the source's
+    metric scale where the user knows it (``CameraSet.metres_per_source_unit``).
 
     Returns:
         the report's summary of what was written.
@@ -152,7 +154,7 @@ def write_pose_outputs(dataset: PosedDataset, ingest: IngestFolder, out: Path,
                             split=split[view.name], blur_px=blur[view.name]))
     cameras = CameraSet(frames=frames, near=min(f.near for f in frames),
                         far=max(f.far for f in frames), centre=centre.tolist(), scale=scale,
-                        source=dataset.source)
+                        source=dataset.source, metres_per_source_unit=metres_per_unit)
     write_cameras(out / "cameras.json", cameras)
     distorted = {json.dumps(camera_dict(view.camera), sort_keys=True) for view, _ in records}
     return {

@@ -107,7 +107,7 @@ def write_records(root: Path, spec: DiveSpec, plan: DivePlan, frames: list[Frame
     root = Path(root)
     cameras = CameraSet(frames=frames, near=min(f.near for f in frames),
                         far=max(f.far for f in frames), centre=[0.0, 0.0, 0.0], scale=1.0,
-                        source="simulated")
+                        source="simulated", metres_per_source_unit=1.0)
     write_cameras(root / "truth" / "cameras.json", cameras)
     write_json(root / "truth" / "water.json", spec.water.to_dict())
     write_json(root / "truth" / "sensor.json", sensor_record(

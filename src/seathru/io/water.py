@@ -12,6 +12,9 @@ read too)::
      "c_med": [r, g, b],                # linear radiance of the training images
      "normalised": {"sigma_attn", "sigma_bs", "c_med"},   # 1/(normalised unit): the source
      "per_source_unit": {"sigma_attn", "sigma_bs"},
+     # where the camera file knows the source's metric scale (poses.metres_per_unit; the
+     # simulator's own cameras): the coefficients in 1/m, and their 95% intervals
+     "metres_per_source_unit": m, "per_metre": {"sigma_attn", "sigma_bs", "interval95"},
      # modes "view" and "veiling" only: the values above are means over training rays, and
      "note": "...", "normalised_min": {...}, "min": {...}, "normalised_max": {...}, "max": {...}}
 
@@ -115,6 +118,7 @@ class WaterReport:
         scale: normalised scene units per source unit (the camera file's ``scale``).
         normalised: coefficients per normalised unit; for ``view``, means over training rays.
         normalised_min, normalised_max: ``view`` only, extremes over the same rays.
+        metres_per_source_unit: the camera file's metric scale, where known.
     """
 
     mode: str
@@ -123,11 +127,13 @@ class WaterReport:
     normalised_min: WaterValues | None = None
     normalised_max: WaterValues | None = None
     uncertainty: Mapping[str, Any] | None = None
+    metres_per_source_unit: float | None = None
     format: str = WATER_FORMAT
 
     @classmethod
     def from_parameters(cls, params: Mapping[str, Any], scale: float,
-                        assessment: Mapping[str, Any] | None = None) -> WaterReport:
+                        assessment: Mapping[str, Any] | None = None,
+                        metres_per_source_unit: float | None = None) -> WaterReport:
         """From ``SeaThruModel.water_parameters(directions)``: ``mode``, ``sigma_attn``,
         ``sigma_bs``, ``c_med`` (lists of 3, normalised units) and, for ``view``, ``min`` and
         ``max`` dicts of the same keys.
@@ -166,7 +172,7 @@ class WaterReport:
                 uncertainty["open_water_beyond"] = float(assessment["open_water_beyond"])
         return cls(mode=str(params["mode"]), scale=float(scale),
                    normalised=WaterValues.from_mapping(params, "parameters"), **bounds,
-                   uncertainty=uncertainty)
+                   uncertainty=uncertainty, metres_per_source_unit=metres_per_source_unit)
 
     @property
     def per_source_unit(self) -> WaterValues:
@@ -185,12 +191,25 @@ class WaterReport:
         }
         if self.uncertainty:
             data["uncertainty"] = self._uncertainty_dict()
+        if self.metres_per_source_unit:
+            data["metres_per_source_unit"] = self.metres_per_source_unit
+            data["per_metre"] = self._per_metre(data)
         if self.mode in DIRECTIONAL and self.normalised_min and self.normalised_max:
             data["note"] = VIEW_NOTE
             for bound, values in (("min", self.normalised_min), ("max", self.normalised_max)):
                 data[f"normalised_{bound}"] = values.as_dict()
                 data[bound] = values.scaled(self.scale).as_dict()
         return data
+
+    def _per_metre(self, data: Mapping[str, Any]) -> dict[str, Any]:
+        """The coefficients (and their intervals) of ``data`` divided by the metric scale."""
+        m = self.metres_per_source_unit
+        per = {k: [v / m for v in data["per_source_unit"][k]] for k in SIGMA_KEYS}
+        if "uncertainty" in data:
+            per["interval95"] = {k: [[None if v is None else v / m for v in pair]
+                                     for pair in data["uncertainty"]["interval95"][k]]
+                                 for k in SIGMA_KEYS}
+        return per
 
     def _uncertainty_dict(self) -> dict[str, Any]:
         u = self.uncertainty
@@ -273,9 +292,15 @@ class WaterReport:
                 if isinstance(below, Mapping) and below.get("least_surface_range") is not None:
                     uncertainty["open_water_beyond"] = \
                         float(below["least_surface_range"]) * float(scale)
+            metres = data.get("metres_per_source_unit")
+            if metres is not None and (isinstance(metres, bool) or
+                                       not isinstance(metres, (int, float)) or metres <= 0):
+                raise ValueError(f"metres_per_source_unit must be a positive number, found "
+                                 f"{metres!r}")
             return cls(mode=mode, scale=float(scale),
                        normalised=WaterValues.from_mapping(data.get("normalised"), "normalised"),
-                       **bounds, uncertainty=uncertainty)
+                       **bounds, uncertainty=uncertainty,
+                       metres_per_source_unit=None if metres is None else float(metres))
         except (ValueError, KeyError, TypeError) as exc:
             raise PipelineError(f"{source}: not a valid water file ({exc}); re-run the 'train' "
                                 "step") from None

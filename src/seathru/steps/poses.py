@@ -1,18 +1,15 @@
 """Camera poses and intrinsics: COLMAP (pycolmap) or an existing dataset, to one cameras.json.
 
-Inputs: the ``ingest`` output folder (``matching/`` 8-bit copies for feature matching,
-``linear/`` float linear images, optional ``masks/`` and ``manifest.json``).
+Inputs: the ``ingest`` output folder (``matching/``, ``linear/``, ``masks/``, manifest).
 
 ``--source colmap`` (default) runs SIFT + matching + mapping on the matching copies (CLAHE
-contrast first, for murky water) and keeps the largest model. Quality gate: registered fraction,
-mean reprojection error and (``--cross-check``) confirmation by an independent model, i.e. the
-other mapper (incremental / global) or the other matcher (sequential / exhaustive) agreeing on
-the poses after a similarity alignment: repeated texture can give a wrong model with every
-image registered and a low reprojection error. Failing models are followed by retries (another
-seed, the other mapper, the other matcher). Fewer registered images than ``--min-registered``
-is an error; a model that registers enough but is not confirmed (fails the rest of the gate)
-fails the step with what disagreed and what to try (``--on-unconfirmed fail``), or is kept with
-``gate_passed: false`` in the report and a warning (``--on-unconfirmed warn``).
+contrast first, for murky water) and keeps the largest model. Quality gate: registered
+fraction, mean reprojection error and (``--cross-check``) confirmation by an independent model
+(the other mapper or matcher agreeing on the poses after a similarity alignment: repeated
+texture can give a wrong model with every image registered and a low reprojection error).
+Failing models are followed by retries (another seed, mapper, matcher). Fewer registered images
+than ``--min-registered`` is an error; a model not confirmed fails the step with what disagreed
+and what to try (``--on-unconfirmed fail``), or is kept with a warning (``warn``).
 ``--source llff|colmap-model|nerfstudio`` reads poses that already exist in ``--source-dir``
 instead (LLFF rows named by the image folder ingest read, from its manifest).
 
@@ -106,6 +103,8 @@ class Settings:
                    "fraction of the camera extent")
     max_rotation_disagreement_deg: float = setting(
         1.0, help="cross-check: largest camera rotation deviation, degrees")
+    metres_per_unit: float | None = setting(None, help="metres per unit of the reconstruction, "
+                                            "where known: the water is also written per metre")
     on_unconfirmed: Literal["fail", "warn"] = setting(
         "fail", help="a camera model the quality gate did not confirm: fail the dataset (saying "
                      "what disagreed and what to try) or warn (train on it, the report shows it)")
@@ -113,6 +112,8 @@ class Settings:
     def validate(self) -> None:
         if not 0.0 < self.min_registered <= 1.0:
             raise ValueError(f"--min-registered must be in (0, 1], got {self.min_registered}")
+        if self.metres_per_unit is not None and not self.metres_per_unit > 0:
+            raise ValueError(f"--metres-per-unit must be positive, got {self.metres_per_unit}")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -157,10 +158,9 @@ def run(args: argparse.Namespace) -> None:
             details = {"reader_notes": dataset.notes}
         summary = write_pose_outputs(dataset, ingest, out, cfg.near, cfg.far, cfg.test_every,
                                      str(args.source_dir or ingest.root),
-                                     cfg.undistort_interpolation)
-        given = {k: v for k, v in vars(args).items() if not k.startswith("_")}
-        arguments = {k: str(v) if isinstance(v, Path) else v
-                     for k, v in {**given, **settings.to_dict(cfg)}.items()}
+                                     cfg.undistort_interpolation, cfg.metres_per_unit)
+        arguments = {k: str(v) if isinstance(v, Path) else v for k, v in
+                     {**vars(args), **settings.to_dict(cfg)}.items() if not k.startswith("_")}
         report = {"format": FORMAT, "source": dataset.source, "ingest": str(args.ingest),
                   "arguments": arguments, **details, **summary,
                   "seconds": round(time.perf_counter() - start, 2)}

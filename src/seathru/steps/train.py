@@ -139,7 +139,8 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     directions = data.fixed_subset(8192, config.seed + 4).directions
     trained_water = model.water_parameters(directions)
     report = WaterReport.from_parameters(trained_water, float(cameras.scale),
-                                         trainer.assess_water(trained_water))
+                                         trainer.assess_water(trained_water),
+                                         cameras.metres_per_source_unit)
     write_water(out / "water.json", report)
     warnings = [step_warning("train", "water_undetermined", report.undetermined_message(),
                              parameters=report.undetermined)] if report.undetermined else []
