@@ -230,6 +230,28 @@ def test_water_plot_draws_intervals_and_marks_undetermined_values():
     assert len(hatched) == 3 and not [p for p in attn.patches if p.get_hatch()]
 
 
+def test_water_of_a_dive_with_a_known_scale_is_shown_per_metre():
+    from seathru.eval.report import water_intervals, water_values
+    from seathru.io.water import WaterReport
+
+    params = {"mode": "global", "sigma_attn": [0.8, 0.4, 0.3], "sigma_bs": [0.5, 0.25, 0.2],
+              "c_med": [0.05, 0.2, 0.3]}
+    half = {k: [0.01, 0.5, 0.02] for k in ("sigma_attn", "sigma_bs", "c_med")}
+    assessment = {"halfwidth95": half, "determined": {k: [True, False, True] for k in half},
+                  "surface_fit": {k: list(params[k]) for k in half}, "pixels": 100,
+                  "groups": 10}
+    scaled = WaterReport.from_parameters(params, 0.5, assessment, 0.25).to_dict()
+    fitted, truth, unit = water_values(DatasetRecord("reef", water=scaled))
+    assert unit == "1/m" and truth is None
+    assert fitted["sigma_attn"] == scaled["per_metre"]["sigma_attn"] != scaled["sigma_attn"]
+    assert fitted["c_med"] == scaled["c_med"]
+    interval, _ = water_intervals(DatasetRecord("reef", water=scaled))
+    assert interval["sigma_bs"] == scaled["per_metre"]["interval95"]["sigma_bs"]
+    assert interval["c_med"] == scaled["uncertainty"]["interval95"]["c_med"]
+    plain = WaterReport.from_parameters(params, 0.5, assessment).to_dict()
+    assert water_values(DatasetRecord("reef", water=plain))[2] == "1/source unit"
+
+
 # -- community protocol and colour chart -------------------------------------------------------
 
 def _chart(measured: dict[str, np.ndarray | None], occluded=(5,), chart="macbeth-classic-24"):

@@ -682,18 +682,28 @@ def water_intervals(record: DatasetRecord) -> tuple[dict | None, dict | None]:
     uncertainty = (record.water or {}).get("uncertainty")
     if not uncertainty:
         return None, None
-    return uncertainty.get("interval95"), uncertainty.get("determined")
+    intervals = uncertainty.get("interval95")
+    per_metre = (record.water or {}).get("per_metre") or {}
+    if intervals is not None and per_metre.get("interval95"):
+        intervals = {**intervals, **per_metre["interval95"]}
+    return intervals, uncertainty.get("determined")
 
 
 def water_values(record: DatasetRecord) -> tuple[dict | None, dict | None, str]:
     """(fitted, truth, unit) of a dataset's water: in 1/m against the truth where the truth is
-    known, else per unit of its own reconstruction; (None, None, "") without either."""
+    known, in 1/m where the camera file knew the metric scale (``poses.metres_per_unit``), else
+    per unit of its own reconstruction; (None, None, "") without any."""
     truth = record.summary.truth if record.summary else None
     if truth is not None and truth.water.fitted:
         return truth.water.fitted, truth.water.truth, "1/m"
     if record.water is None:
         return None, None, ""
-    return {k: record.water[k] for k in WATER_KEYS if k in record.water}, None, "1/source unit"
+    fitted = {k: record.water[k] for k in WATER_KEYS if k in record.water}
+    per_metre = record.water.get("per_metre") or {}
+    if all(k in per_metre for k in ("sigma_attn", "sigma_bs")):
+        return {**fitted, "sigma_attn": per_metre["sigma_attn"],
+                "sigma_bs": per_metre["sigma_bs"]}, None, "1/m"
+    return fitted, None, "1/source unit"
 
 
 # ----------------------------------------------------------------------------------------- HTML
