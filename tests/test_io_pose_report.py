@@ -7,14 +7,12 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
 
-from seathru.cli import build_parser
 from seathru.errors import PipelineError
 from seathru.geometry.quality import QualityGate, SfmAttempt, SfmSettings
 from seathru.io.pose_report import FORMAT, read_pose_report, write_pose_report
+from tests.test_poses import nerfstudio_poses
 
 
 def summary() -> dict:
@@ -81,22 +79,7 @@ def test_format_and_json_errors(tmp_path):
 
 def test_the_poses_step_writes_a_reader_report_that_reads_back(tmp_path):
     """Existing poses (nerfstudio): the report carries the reader's notes, no COLMAP fields."""
-    ingest = tmp_path / "ingest"
-    (ingest / "linear").mkdir(parents=True)
-    frames = []
-    for i in range(3):
-        c2w = np.eye(4)
-        c2w[0, 3] = float(i)
-        frames.append({"file_path": f"images/f{i}.png", "transform_matrix": c2w.tolist()})
-        cv2.imwrite(str(ingest / "linear" / f"f{i}.png"), np.full((30, 40, 3), 90, np.uint8))
-    (tmp_path / "transforms.json").write_text(json.dumps(
-        {"fl_x": 40.0, "fl_y": 40.0, "cx": 20.0, "cy": 15.0, "w": 40, "h": 30,
-         "frames": frames}))
-    out = tmp_path / "poses"
-    args = build_parser().parse_args(
-        ["poses", "--ingest", str(ingest), "--out", str(out), "--source", "nerfstudio",
-         "--source-dir", str(tmp_path), "--near", "0.5", "--far", "5", "--test-every", "2"])
-    args._run(args)
+    out = nerfstudio_poses(tmp_path, "poses", "--test-every", "2")
     report = read_pose_report(out / "report.json")
     assert report["format"] == FORMAT and report["frames"] == 3 and report["test_frames"] == 2
     assert report["reader_notes"]["transforms"] == str(tmp_path / "transforms.json")

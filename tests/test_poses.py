@@ -792,7 +792,7 @@ def test_pixel_of_points_finds_the_pixel_whose_ray_passes_through_the_point(
     assert not inside[1] and (rows[1], columns[1]) == (0, 0)
 
 
-def _nerfstudio_poses(tmp_path: Path, name: str, *flags: str) -> Path:
+def nerfstudio_poses(tmp_path: Path, name: str, *flags: str) -> Path:
     """The poses step on three nerfstudio frames 1 unit apart; its output folder."""
     ingest = tmp_path / "ingest"
     (ingest / "linear").mkdir(parents=True, exist_ok=True)
@@ -814,12 +814,12 @@ def _nerfstudio_poses(tmp_path: Path, name: str, *flags: str) -> Path:
 
 
 def test_a_known_metric_scale_goes_into_the_camera_file(tmp_path):
-    scaled = read_cameras(_nerfstudio_poses(tmp_path, "scaled", "--metres-per-unit", "0.25")
+    scaled = read_cameras(nerfstudio_poses(tmp_path, "scaled", "--metres-per-unit", "0.25")
                           / "cameras.json")
     assert scaled.metres_per_source_unit == 0.25
-    plain = _nerfstudio_poses(tmp_path, "plain")
+    plain = nerfstudio_poses(tmp_path, "plain")
     assert read_cameras(plain / "cameras.json").metres_per_source_unit is None
     assert "metres_per_source_unit" not in json.loads(
         (plain / "cameras.json").read_text())["normalisation"]
     with pytest.raises(PipelineError, match="metres-per-unit must be positive"):
-        _nerfstudio_poses(tmp_path, "negative", "--metres-per-unit", "-1")
+        nerfstudio_poses(tmp_path, "negative", "--metres-per-unit", "-1")
