@@ -613,8 +613,8 @@ def _weights_at(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tensor,
 # Stopping rule of every fit, on the loss relative to its start value. A fit started at its
 # optimum (the later rounds of brightness weights, the dark-bound fit where the bound does not
 # bind) ran to the evaluation limit under 1e-16 / 1e-12, changing the loss by under 1e-9: on
-# the demo 5.8 of a refit's 7.5 s (a one-off count). These stop it there; the water moves by under 0.5%
-# (benchmarks/results/refit_tolerance.md).
+# the demo 5.8 of a refit's 7.5 s (a one-off count). These stop it there; the water moves by
+# under 0.5% (benchmarks/results/refit_tolerance.md).
 LBFGS_TOLERANCE_CHANGE = 1e-10
 LBFGS_TOLERANCE_GRAD = 1e-9
 
