@@ -104,7 +104,7 @@ class Settings:
     max_rotation_disagreement_deg: float = setting(
         1.0, help="cross-check: largest camera rotation deviation, degrees")
     metres_per_unit: float | None = setting(None, help="metres per unit of the reconstruction, "
-                                            "where known: the water is also written per metre")
+                                            "if known (unset: not known); water.json per metre")
     on_unconfirmed: Literal["fail", "warn"] = setting(
         "fail", help="a camera model the quality gate did not confirm: fail the dataset (saying "
                      "what disagreed and what to try) or warn (train on it, the report shows it)")
