@@ -4,8 +4,8 @@ A diagnostic, not a test.
 The refit (``seathru.nerf.water_fit``) fits one clean colour per group of pixels. What a group's
 pixels do not share (texture of a slightly different spot, a footprint averaging more or less of
 it) is transmitted by the water like the signal, so it shrinks with range; with the clean colour
-profiled out, such noise pulls the attenuation up (docs/water.md, "One draw of refit rays, and
-noise that fades with range"). The candidate here weights every pixel by the inverse of a variance
+profiled out, such noise pulls the attenuation up (docs/water.md, "Noise that fades with range
+pulls the attenuation up", which also says why it was not taken into the refit). The candidate here weights every pixel by the inverse of a variance
 function of its predicted direct signal ``D = J exp(-sigma_attn z)``, ``s0^2 + v^2 D^2`` per
 channel (robust variances of the residuals in bins of ``D^2``, a line through them), and fits the
 clean colours and the water with those weights, three rounds (iteratively reweighted). No
