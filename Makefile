@@ -20,11 +20,15 @@ demo: $(STAMP)
 	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/snakemake --cores $(CORES) --report report.html
 	@echo "Report: results/report/summary.html and report.html"
 
+# The tests run in $(CORES) processes, a test file to a process (its module fixtures run once):
+# most tests leave a core idle, and the SLURM test mostly waits on the queue.
+PYTEST := PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/python -m pytest -n $(CORES) --dist loadfile
+
 test: $(STAMP)
-	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/python -m pytest
+	$(PYTEST)
 
 test-fast: $(STAMP)
-	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/python -m pytest -m "not slow"
+	$(PYTEST) -m "not slow"
 
 clean-results:
 	rm -rf results/*/ logs .snakemake report.html

@@ -40,9 +40,13 @@ def build_parser(steps: dict | None = None) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None, only: str | None = None) -> int:
     """Run ``seathru STEP ...``. ``only`` imports that one step alone, for scripts on machines
     that lack another step's dependencies (a GPU node without pycolmap, say)."""
-    steps = None if only is None else {only: importlib.import_module(f"seathru.steps.{only}")}
     if only is not None:
         argv = [only, *(sys.argv[1:] if argv is None else argv)]
+    argv = sys.argv[1:] if argv is None else list(argv)
+    # A step's run imports that step alone: every step's dependencies took seconds to load.
+    named = next((word for word in argv if not word.startswith("-")), None)
+    steps = {named: importlib.import_module(f"seathru.steps.{named}")} \
+        if named in STEP_ORDER else None
     args = build_parser(steps).parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")

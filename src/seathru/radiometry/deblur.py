@@ -23,7 +23,6 @@ from typing import Sequence
 
 import cv2
 import numpy as np
-from skimage.restoration import wiener
 
 #: Gaussian sigma (pixels of the decoded image, R G B) that best matches LibRaw's demosaic of a
 #: Bayer mosaic, measured by decoding a mosaic of a known texture
@@ -91,6 +90,9 @@ def deblurred(image: np.ndarray, sigma_px: Sequence[float],
 
         sharp = deblurred(image, processing_blur("LINEAR", 1.0, "linear"))
     """
+    # scipy.signal, which skimage.restoration loads, takes 1.5 s to import: only where it is used
+    from skimage.restoration import wiener
+
     image = np.asarray(image, dtype=np.float32)
     out = image.copy()
     finite = np.isfinite(image)

@@ -21,7 +21,6 @@ from pathlib import Path
 from seathru import settings
 from seathru.errors import PipelineError
 from seathru.eval import display
-from seathru.eval.camera_path import path_frames
 from seathru.io import renders
 from seathru.io.atomic import atomic_dir
 from seathru.io.cameras import CameraSet, read_cameras
@@ -152,6 +151,8 @@ def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Map
                                        done={f.name for f in test_frames}, glare=glare)
         path_stats, videos = [], {}
         if cfg.path_frames > 0:
+            from seathru.eval.camera_path import path_frames  # scipy.interpolate: seconds
+
             with renders.PathVideos(tmp / "path", cfg.fps) as writer:
                 for frame, images, seconds in timed_renders(
                         render_fn, path_frames(cameras, cfg.path_frames), cfg.video_downscale):
