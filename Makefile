@@ -20,9 +20,11 @@ demo: $(STAMP)
 	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/snakemake --cores $(CORES) --report report.html
 	@echo "Report: results/report/summary.html and report.html"
 
-# The tests run in $(CORES) processes, a test file to a process (its module fixtures run once):
-# most tests leave a core idle, and the SLURM test mostly waits on the queue.
-PYTEST := PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/python -m pytest -n $(CORES) --dist loadfile
+# The tests run in $(CORES) processes, a test file to a process (its module fixtures run once),
+# the files in the order tests/conftest.py puts them (slow first): most tests leave a core idle,
+# and the SLURM test mostly waits on the queue.
+PYTEST := PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/python -m pytest -n $(CORES) --dist loadfile \
+	--no-loadscope-reorder
 
 test: $(STAMP)
 	$(PYTEST)

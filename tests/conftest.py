@@ -39,6 +39,14 @@ def _skip_an_unreachable_slurm_controller() -> None:
 _skip_an_unreachable_slurm_controller()
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Slow tests first, SLURM's first of all. ``make test`` runs the files in two processes in
+    collection order (``--no-loadscope-reorder``): the long files start at once instead of
+    finishing alone, and the SLURM run, which mostly waits on the queue, overlaps the others."""
+    items.sort(key=lambda item: (item.get_closest_marker("slow") is None,
+                                 "test_slurm.py" not in item.nodeid))
+
+
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     """The real test data in ../shared/data; skips the test when it is absent."""
