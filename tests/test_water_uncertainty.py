@@ -79,6 +79,7 @@ def test_cluster_variances_match_the_spread_of_fits_over_independent_noise():
     assert 0.6 < float(np.exp(np.log(ratio).mean())) < 1.5, ratio
 
 
+@pytest.mark.slow  # many seeded fits (20-45 s)
 def test_robust_intervals_hold_the_truth_about_95_percent_of_the_time_with_independent_noise():
     spreads = []
     for seed in range(40):
@@ -94,6 +95,7 @@ def test_robust_intervals_hold_the_truth_about_95_percent_of_the_time_with_indep
     assert determined > 0.8, determined
 
 
+@pytest.mark.slow  # many seeded fits (20-45 s)
 def test_robust_intervals_hold_the_truth_when_errors_are_shared_by_many_surfaces():
     """One side of the scene placed 10% too far (a NeRF's geometry errors are shared by whole
     regions, not only by a voxel's pixels), on top of 3% depth errors per surface: the
@@ -133,6 +135,7 @@ def test_robust_intervals_widen_where_parts_of_the_data_disagree():
             assert half == pytest.approx(float(np.hypot(stat, sys)), rel=1e-9)
 
 
+@pytest.mark.slow  # many seeded fits (20-45 s)
 def test_robust_intervals_allow_for_the_error_of_the_model_depth():
     """Ranges with 6% error per pixel (a NeRF's depth) bias the fit; intervals told of that
     error hold the truth where those that take the ranges as exact miss it."""
