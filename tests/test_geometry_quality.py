@@ -144,6 +144,20 @@ def test_a_failure_on_a_handful_of_images_says_the_set_is_too_small():
     assert "Only" not in failure_message([], None, 40, QualityGate())
 
 
+def test_a_failure_names_the_views_that_share_no_matches():
+    gate = QualityGate()
+    matched = {"reef_01": 800, "reef_02": 800, "blue_02": 0, "blue_03": 14}
+    features = {"reef_01": 5000, "reef_02": 4000, "blue_02": 12, "blue_03": 40}
+    some = failure_message([], None, 30, gate, matched, features)
+    assert ("2 of 30 images share 15 verified feature matches with any other image (their SIFT "
+            "features: median 26 an image)") in some
+    assert "remove those views (blue_02, blue_03)" in some and "reef_01" not in some
+    every = failure_message([], None, 2, gate, {"a": 3, "b": 3})
+    assert "No image shares 15 verified feature matches with any other image:" in every
+    matching = failure_message([], None, 30, gate, {"a": 15, "b": 900}, {"a": 50, "b": 50})
+    assert "verified" not in matching and matching == failure_message([], None, 30, gate)
+
+
 @pytest.mark.parametrize("fraction", [0.0, 0.5, 1.0])
 def test_attempt_record_has_the_registered_fraction(fraction):
     record = attempt(registered=int(10 * fraction), total=10).to_dict()

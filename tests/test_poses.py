@@ -583,8 +583,33 @@ def test_unrelated_images_fail_with_advice_and_leave_nothing(tmp_path):
     for advice in ("--matcher exhaustive", "--max-features", "--max-image-size", "--focal-px"):
         assert advice in message
     assert "global mapping" in message and "exhaustive matching" in message  # retries listed
+    # seven photographs of seven things: none shares a matched feature with another
+    assert "No image shares 15 verified feature matches with any other image" in message
+    assert "views of another place share nothing" in message
     assert not out.exists()
     assert list((tmp_path / "results").iterdir()) == []
+
+
+def test_views_of_open_water_fail_saying_they_hold_no_features(tmp_path):
+    # a diver's frames of blue water: a vertical gradient and sensor noise, nothing to match
+    ingest = tmp_path / "ingest"
+    rng = np.random.default_rng(0)
+    rows = np.linspace(0.0, 1.0, 180)[:, None, None]
+    for folder in ("matching", "linear"):
+        (ingest / folder).mkdir(parents=True)
+    for i in range(12):
+        water = (np.array([0.05, 0.3, 0.45]) + 0.2 * rows) * np.ones((1, 240, 1))
+        water = np.clip(water + rng.normal(0.0, 0.01, water.shape), 0.0, 1.0)
+        for folder in ("matching", "linear"):
+            cv2.imwrite(str(ingest / folder / f"GOPR{i:04d}.png"),
+                        (water[..., ::-1] * 255).astype(np.uint8))
+    out = tmp_path / "results" / "poses"
+    with pytest.raises(PipelineError) as failure:
+        run_poses("--ingest", str(ingest), "--out", str(out), "--threads", THREADS)
+    message = str(failure.value)
+    assert "registered only 0 of 12 images" in message
+    assert "No image shares 15 verified feature matches with any other image" in message
+    assert "open water" in message and "GOPR0000" in message
 
 
 @pytest.fixture(scope="module")

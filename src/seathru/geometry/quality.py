@@ -260,10 +260,35 @@ def unconfirmed_run(runs: list[SfmRun], matcher: str, cross_check: bool) -> SfmR
 #: Below this many images a failed registration is most likely the set's size.
 FEW_IMAGES = 10
 
+#: COLMAP keeps an image pair with at least 15 verified (inlier) matches: an image with fewer
+#: with every other image has no partner to register with.
+FEW_MATCHES = 15
+
+
+def _unmatched(matched: dict[str, int], features: dict[str, int], total: int) -> str:
+    """A sentence naming the views that share too few verified matches with any other view
+    (``matched``: the best pair's inliers per view; ``features``: SIFT keypoints per view)."""
+    lone = sorted(name for name, inliers in matched.items() if inliers < FEW_MATCHES)
+    if not lone:
+        return ""
+    listed = ", ".join(lone[:10]) + (" ..." if len(lone) > 10 else "")
+    which = ("No image shares" if len(lone) == len(matched)
+             else f"{len(lone)} of {total} images share")
+    counts = [features[name] for name in lone if name in features]
+    keypoints = (f" (their SIFT features: median {int(np.median(counts))} an image)"
+                 if counts else "")
+    return (f" {which} {FEW_MATCHES} verified feature matches with any other image{keypoints}: "
+            f"views of open water, bare sand, blur or darkness hold nothing to match, and views "
+            f"of another place share nothing with the rest. Photograph the seabed or the reef "
+            f"with texture in every frame, or remove those views ({listed}).")
+
 
 def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total: int,
-                    gate: QualityGate) -> str:
-    """Why no model registers enough images: every attempt, and what to try next."""
+                    gate: QualityGate, matched: dict[str, int] | None = None,
+                    features: dict[str, int] | None = None) -> str:
+    """Why no model registers enough images: every attempt, and what to try next.
+    ``matched`` (verified inliers of each image's best pair) and ``features`` (SIFT keypoints
+    per image), by image name: to name the views that have nothing to match."""
     registered = chosen.registered if chosen else 0
     tried = "; ".join(
         f"{a.settings['matcher']} matching + {a.settings['mapper']} mapping, seed "
@@ -275,7 +300,8 @@ def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total
            f"photographs of the scene (each part seen from three or more positions)."
            if total < FEW_IMAGES else "")
     return (f"COLMAP registered only {registered} of {total} images in its largest model "
-            f"(need {gate.min_registered_fraction:.0%}).{few} Tried: {tried}. Try --matcher "
+            f"(need {gate.min_registered_fraction:.0%}).{few}"
+            f"{_unmatched(matched or {}, features or {}, total)} Tried: {tried}. Try --matcher "
             f"exhaustive for an unordered set or a larger --overlap for an ordered transect, "
             f"more features (--max-features 16384), a larger --max-image-size, a known focal "
             f"length (--focal-px or --focal-mm with --sensor-width-mm), or remove images that "

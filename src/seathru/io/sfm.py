@@ -14,7 +14,7 @@ import contextlib
 import logging
 import shutil
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Iterator
 
@@ -187,6 +187,8 @@ class SfmResult:
     model: pycolmap.Reconstruction | None
     chosen: SfmAttempt | None
     attempts: list[SfmAttempt]
+    features: dict[str, int] = field(default_factory=dict)  # SIFT keypoints per image name
+    matched: dict[str, int] = field(default_factory=dict)  # inliers of each image's best pair
 
     @property
     def passed(self) -> bool:
@@ -251,11 +253,13 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
     it, a model must also be confirmed by an independent model (other mapper or other matcher)
     agreeing with its poses: a self-consistent model (every image, low reprojection error) can
     still be wrong when repeated texture produces consistent false matches, and both mappers
-    fail that way at times. Models built on the user's matcher are the candidates (for ordered dive sets the
-    sequential matches hold fewer false pairs); the other matcher's models serve as witnesses,
+    fail that way at times. Models built on the user's matcher are the candidates (for ordered
+    dive sets the sequential matches hold fewer false pairs); the other matcher's models serve
+    as witnesses,
     and become candidates only when no model on the user's matcher passes the gate. Among
     confirmed candidates the one tried first wins; when no candidate is confirmed, the one with
-    the lowest mean reprojection error is kept, marked unconfirmed.
+    the lowest mean reprojection error is kept, marked unconfirmed. The result also holds each
+    image's SIFT feature count and its best pair's verified matches, for the failure message.
     """
     work_dir.mkdir(parents=True, exist_ok=True)
     runner = _Runner(image_dir, names, work_dir, gate)
@@ -267,7 +271,9 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
         start = time.perf_counter()
         extract_features(runner.features_db, image_dir, names, settings, image_size, mask_dir,
                          sizes)
-        log.info("SIFT features for %d images in %.1f s", len(names), time.perf_counter() - start)
+        features = feature_counts(runner.features_db)
+        log.info("SIFT features for %d images in %.1f s (median %d an image)", len(names),
+                 time.perf_counter() - start, int(np.median(list(features.values()) or [0])))
         queue = list(plan)
         while queue and chosen is None:
             current = queue.pop(0)
@@ -284,9 +290,38 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
                                        compare_models)
         if chosen is None and runs:
             chosen = unconfirmed_run(runs, settings.matcher, cross_check)
+    # the exhaustive matcher's pairs, where it ran, are every pair
+    databases = sorted(runner.matched.items(), key=lambda item: item[0][0] != "exhaustive")
+    support = best_pair_inliers(databases[0][1], features) if databases else {}
     if chosen is None or chosen.attempt.registered == 0:
-        return SfmResult(model=None, chosen=None, attempts=runner.attempts)
-    return SfmResult(model=chosen.model, chosen=chosen.attempt, attempts=runner.attempts)
+        return SfmResult(None, None, runner.attempts, features, support)
+    return SfmResult(chosen.model, chosen.attempt, runner.attempts, features, support)
+
+
+def feature_counts(database: Path) -> dict[str, int]:
+    """SIFT keypoints of each image (by file name) in a COLMAP database."""
+    db = pycolmap.Database.open(database)
+    try:
+        return {image.name: int(db.num_keypoints_for_image(image.image_id))
+                for image in db.read_all_images()}
+    finally:
+        db.close()
+
+
+def best_pair_inliers(database: Path, features: dict[str, int]) -> dict[str, int]:
+    """Verified (inlier) matches of each image's best pair in a matched COLMAP database, by
+    file name (``features``' names: an image in no pair has 0)."""
+    db = pycolmap.Database.open(database)
+    try:
+        names = {image.image_id: image.name for image in db.read_all_images()}
+        best = dict.fromkeys(features, 0)
+        for pair_id, inliers in zip(*db.read_two_view_geometry_num_inliers()):
+            for image_id in pycolmap.pair_id_to_image_pair(pair_id):
+                name = names[image_id]
+                best[name] = max(best.get(name, 0), int(inliers))
+        return best
+    finally:
+        db.close()
 
 
 def _fmt(value: float | None) -> str:
@@ -381,7 +416,9 @@ def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: Q
                          sizes=sizes)
     chosen = result.chosen
     if chosen is None or chosen.registered_fraction < gate.min_registered_fraction:
-        raise PipelineError(failure_message(result.attempts, chosen, len(names), gate))
+        raise PipelineError(failure_message(result.attempts, chosen, len(names), gate,
+                                            *({Path(n).stem: c for n, c in counts.items()}
+                                              for counts in (result.matched, result.features))))
     gate_message = None
     if not chosen.passed:
         gate_message = unconfirmed_message(result.attempts, chosen, gate, clahe,
