@@ -110,3 +110,14 @@ def test_pose_warnings_from_the_report():
     # an image COLMAP did not register has no pose: one warning, not two
     once = pose_warnings(_report(unregistered=["b", "c"], linear_images_without_pose=["b", "c"]))
     assert [w["code"] for w in once] == ["unregistered_images"]
+
+
+@pytest.mark.parametrize("frames, held_out, warned", [(4, 1, True), (11, 2, True),
+                                                      (12, 2, False), (40, 5, False)])
+def test_a_handful_of_training_views_is_warned_about(frames, held_out, warned):
+    found = pose_warnings(_report(frames=frames, test_frames=held_out))
+    assert [w["code"] for w in found] == (["few_views"] if warned else [])
+    if warned:
+        assert found[0]["message"].startswith(f"only {frames - held_out} training views")
+        assert found[0]["details"] == {"training_views": frames - held_out,
+                                       "held_out_views": held_out}

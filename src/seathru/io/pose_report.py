@@ -152,11 +152,16 @@ def read_pose_report(path: str | Path) -> AnyPoseReport:
     return data
 
 
+#: Fewer training views than this: the model fits them and shows little else (a NeRF needs
+#: tens of overlapping photographs).
+FEW_TRAINING_VIEWS = 10
+
+
 def pose_warnings(report: AnyPoseReport, layout: dict | None = None) -> list[StepWarning]:
     """What the poses step's user should look at, from its report: an unconfirmed camera model
     (kept with ``poses.on_unconfirmed=warn``), images COLMAP did not register, posed frames
     without an image (except those the ingest step already named missing in its ``layout``
-    record) and images without a pose."""
+    record), images without a pose, and fewer than ``FEW_TRAINING_VIEWS`` training views."""
     found: list[StepWarning] = []
     if report.get("gate_passed") is False:
         found.append(step_warning(
@@ -187,4 +192,13 @@ def pose_warnings(report: AnyPoseReport, layout: dict | None = None) -> list[Ste
             "poses", "images_without_pose", f"{len(without_pose)} image(s) have no pose in "
             f"the source and are left out: " + ", ".join(without_pose[:10])
             + (" ..." if len(without_pose) > 10 else ""), images=without_pose))
+    frames, held_out = report.get("frames"), report.get("test_frames")
+    if isinstance(frames, int) and isinstance(held_out, int) \
+            and frames - held_out < FEW_TRAINING_VIEWS:
+        found.append(step_warning(
+            "poses", "few_views", f"only {frames - held_out} training views ({held_out} held "
+            f"out): a NeRF needs tens of overlapping photographs, each part of the scene seen "
+            f"from three or more positions; the model will fit these views and show little "
+            f"else, and the held-out figures rest on {held_out} view(s)",
+            training_views=frames - held_out, held_out_views=held_out))
     return found
