@@ -416,9 +416,9 @@ def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: Q
                          sizes=sizes)
     chosen = result.chosen
     if chosen is None or chosen.registered_fraction < gate.min_registered_fraction:
-        raise PipelineError(failure_message(result.attempts, chosen, len(names), gate,
-                                            *({Path(n).stem: c for n, c in counts.items()}
-                                              for counts in (result.matched, result.features))))
+        by_view = [{Path(file).stem: count for file, count in counts.items()}
+                   for counts in (result.matched, result.features)]
+        raise PipelineError(failure_message(result.attempts, chosen, len(names), gate, *by_view))
     gate_message = None
     if not chosen.passed:
         gate_message = unconfirmed_message(result.attempts, chosen, gate, clahe,
