@@ -26,7 +26,6 @@ import pandas as pd
 from seathru.eval import metrics
 from seathru.eval.report import DatasetRecord, capacity_level, training_passes
 from seathru.eval.truth import WATER_KEYS, compare_water
-from seathru.radiometry.linearise import block_average
 
 CHANNELS = "rgb"
 WATER_ERROR_COLUMNS = tuple(f"{key}_rel_error_{c}" for key in WATER_KEYS for c in CHANNELS)

@@ -33,7 +33,8 @@ TRUTH_COLUMNS = ("restored_psnr_linear", "restored_ssim_linear", "restored_psnr_
                  "depth_rmse_m", "restored_psnr_linear_covered",
                  "full_vs_water_psnr_linear_covered", "covered_share",
                  "photo_restored_psnr_linear", "photo_restored_ssim_linear",
-                 "photo_restored_psnr_linear_covered")
+                 "photo_restored_psnr_linear_covered", "reprojected_restored_psnr_linear",
+                 "reprojected_restored_ssim_linear", "reprojected_restored_psnr_linear_covered")
 
 
 class ViewMetrics(TypedDict):
@@ -62,6 +63,9 @@ class ViewMetrics(TypedDict):
     photo_restored_psnr_linear: NotRequired[float]      # the photograph restored by the model
     photo_restored_ssim_linear: NotRequired[float]
     photo_restored_psnr_linear_covered: NotRequired[float]
+    reprojected_restored_psnr_linear: NotRequired[float]   # with the photographs' detail
+    reprojected_restored_ssim_linear: NotRequired[float]
+    reprojected_restored_psnr_linear_covered: NotRequired[float]
 
 
 @dataclass(kw_only=True)

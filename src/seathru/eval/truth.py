@@ -133,7 +133,8 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
                        clean: np.ndarray, water: np.ndarray, truth_depth: np.ndarray,
                        gain: np.ndarray, metres_per_unit: float,
                        covered: np.ndarray | None = None,
-                       restored_photo: np.ndarray | None = None) -> dict[str, float]:
+                       restored_photo: np.ndarray | None = None,
+                       reprojected: np.ndarray | None = None) -> dict[str, float]:
     """The truth columns of ``metrics.csv`` for one held-out view.
 
     Args:
@@ -154,6 +155,9 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
         restored_photo: ``(H, W, 3)`` or None: the view's photograph with the water removed
             by the model's render (``seathru.radiometry.restore``); given, scored alike
             (``photo_restored_psnr_linear``, ``..._ssim_linear``, ``..._psnr_linear_covered``).
+        reprojected: ``(H, W, 3)`` or None: the restored render with the training
+            photographs' restored detail reprojected into it (``seathru.nerf.reproject``);
+            given, scored alike (``reprojected_restored_psnr_linear``, ...).
     """
     defined = np.all(np.isfinite(clean), axis=-1) & np.isfinite(truth_depth)
     restored_m = metrics.image_metrics(gain * restored, clean, valid=defined)
@@ -177,6 +181,12 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
         extra["photo_restored_ssim_linear"] = photo_m["ssim_linear"]
         if covered is not None:
             extra["photo_restored_psnr_linear_covered"] = covered_psnr(restored_photo, clean)
+    if reprojected is not None:
+        reprojected_m = metrics.image_metrics(gain * reprojected, clean, valid=defined)
+        extra["reprojected_restored_psnr_linear"] = reprojected_m["psnr_linear"]
+        extra["reprojected_restored_ssim_linear"] = reprojected_m["ssim_linear"]
+        if covered is not None:
+            extra["reprojected_restored_psnr_linear_covered"] = covered_psnr(reprojected, clean)
     return {
         "restored_psnr_linear": restored_m["psnr_linear"],
         "restored_ssim_linear": restored_m["ssim_linear"],

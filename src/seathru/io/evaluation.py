@@ -36,7 +36,7 @@ from seathru.io.atomic import write_json, write_text
 from seathru.io.cameras import CameraSet, read_cameras
 from seathru.io.images import read_image, read_mask
 from seathru.io.jsonfile import json_safe, read_json
-from seathru.io.renders import RESTORED_PHOTO
+from seathru.io.renders import RESTORED_PHOTO, RESTORED_REPROJECTED
 from seathru.io.stored_views import (source_cameras, stored_image_on_frame,
                                      undistort_interpolation)
 from seathru.io.water import WaterReport, read_truth_water
@@ -315,12 +315,14 @@ def truth_evaluation(truth_dir: Path, renders: Path, cameras: CameraSet, rows: l
         if coverage is not None:
             covered = resized_like(on_frame(coverage(view), view), full) > 0.5
         photo = Path(renders) / "test" / view / f"{RESTORED_PHOTO}.tiff"
+        reprojected = Path(renders) / "test" / view / f"{RESTORED_REPROJECTED}.tiff"
         row.update(truth_eval.view_truth_metrics(
             full=full, restored=read_render(renders, view, "restored"),
             depth=read_render(renders, view, "depth"), clean=truth("clean", view, full),
             water=truth("water", view, full), truth_depth=truth("depth", view, full),
             gain=gain, metres_per_unit=scale.scale, covered=covered,
-            restored_photo=read_image(photo) if photo.is_file() else None))
+            restored_photo=read_image(photo) if photo.is_file() else None,
+            reprojected=read_image(reprojected) if reprojected.is_file() else None))
     fitted = None if water is None else water.normalised.as_dict()
     uncertainty = None if water is None else water.uncertainty
     comparison = truth_eval.compare_water(

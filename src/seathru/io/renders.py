@@ -10,6 +10,9 @@ Layout::
     test/<view>/opacity.tiff  accumulated object opacity, float32 (H, W) (when rendered)
     test/<view>/restored_photo.{tiff,png}  the view's photograph with the water removed by the
                               model's render (``seathru.radiometry.restore``; when readable)
+    test/<view>/restored_reprojected.{tiff,png}  the restored render with the restored training
+                              photographs' detail reprojected into it
+                              (``seathru.nerf.reproject``; ``photos.restore: all``)
     photos/<view>.{tiff,png}  every camera's photograph restored alike (``photos.restore: all``)
     path/{full,restored,depth}.mp4   camera-path videos ('mp4v'; odd sizes padded by one pixel)
     render_stats.json         seconds per frame, frames per second, resolution, display
@@ -23,7 +26,7 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Collection, Iterator, Mapping
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypedDict
 
@@ -39,6 +42,7 @@ from seathru.io.jsonfile import read_json
 from seathru.radiometry.glare import GlareCorrection
 
 if TYPE_CHECKING:
+    from seathru.nerf.reproject import SourceView
     from seathru.radiometry.restore import PhotoRestoration
 
 log = logging.getLogger(__name__)
@@ -51,6 +55,7 @@ RENDER_KEYS = {"full": "rgb", "restored": "restored", "direct": "direct",
                "backscatter": "backscatter"}
 VIDEO_OUTPUTS = ("full", "restored", "depth")
 RESTORED_PHOTO = "restored_photo"
+RESTORED_REPROJECTED = "restored_reprojected"
 PHOTOS_DIR = "photos"
 MAX_EXPOSURE_IMAGES = 24
 _HINT = "re-run the 'render' step"
@@ -194,7 +199,8 @@ def write_test_view(root: str | os.PathLike, view: str, images: Mapping[str, np.
 
 def write_restored_photo(root: str | os.PathLike, view: str, photograph: np.ndarray,
                          images: Mapping[str, np.ndarray], scale: float,
-                         photos: PhotoRestoration, test_view: bool = True) -> bool:
+                         photos: PhotoRestoration, test_view: bool = True
+                         ) -> np.ndarray | None:
     """Restore a photograph through the model's render of its view
     (``seathru.radiometry.restore``) and write it, linear and display copy:
     ``test/<view>/restored_photo.*`` for a held-out view, and ``photos/<view>.*`` for any view
@@ -207,7 +213,7 @@ def write_restored_photo(root: str | os.PathLike, view: str, photograph: np.ndar
         scale: the display exposure; photos: the render step's settings of the restoration.
 
     Returns:
-        whether it was written.
+        the restored photograph (H, W, 3) as written, or None: not written.
     """
     from seathru.eval.display import to_display
     from seathru.radiometry.restore import restore_photograph
@@ -215,7 +221,7 @@ def write_restored_photo(root: str | os.PathLike, view: str, photograph: np.ndar
     if "direct_share" not in images or "opacity" not in images:
         log.warning("%s: the renderer gives no direct_share/opacity; no restored photograph",
                     view)
-        return False
+        return None
     restored = restore_photograph(photograph, images, photos.max_gain, photos.detail_scale)
     shown = to_display(restored, scale)
     if test_view:
@@ -224,32 +230,54 @@ def write_restored_photo(root: str | os.PathLike, view: str, photograph: np.ndar
     if not test_view or photos.restore == "all":
         write_float_tiff(Path(root) / PHOTOS_DIR / f"{view}.tiff", restored)
         write_8bit(Path(root) / PHOTOS_DIR / f"{view}.png", shown)
-    return True
+    return restored
 
 
 def restore_all_photos(render_fn, cameras: CameraSet, root: str | os.PathLike, scale: float,
                        downscale: int, photos: PhotoRestoration,
                        done: Collection[str] = (),
-                       glare: GlareCorrection | None = None) -> int:
-    """Every camera's photograph not in ``done`` (the held-out views, restored as they were
-    rendered) restored into ``photos/`` (:func:`write_restored_photo`), one render per view
-    (``render_fn(frame, downscale)``), without the ``glare`` correction the model was trained
-    with (:func:`read_view_photograph`, :func:`split_glare`); returns how many were written."""
+                       glare: GlareCorrection | None = None) -> list[SourceView]:
+    """Every camera's photograph not in ``done`` restored into ``photos/``
+    (:func:`write_restored_photo`), one render per view (``render_fn(frame, downscale)``),
+    without the ``glare`` correction the model was trained with (:func:`read_view_photograph`,
+    :func:`split_glare`); returns the training views' restored detail of those written
+    (``seathru.nerf.reproject.SourceView``), for :func:`write_reprojected`."""
     from seathru.nerf.inference import timed_renders
+    from seathru.nerf.reproject import SourceView
 
     frames = sorted((f for f in cameras.frames if f.name not in done), key=lambda f: f.name)
-    written = 0
+    sources = []
     for frame, images, seconds in timed_renders(render_fn, frames, downscale):
         height, width = images["depth"].shape[:2]
         photograph, gain = read_view_photograph(cameras, frame, glare, (width, height))
         if photograph is None:
             continue
         photograph, _ = split_glare(photograph, images, gain)
-        written += write_restored_photo(root, frame.name, photograph, images, scale, photos,
+        restored = write_restored_photo(root, frame.name, photograph, images, scale, photos,
                                         test_view=False)
+        if restored is not None and frame.split == "train":
+            sources.append(SourceView.from_render(frame, images, restored, downscale))
         log.info("restored photograph %s in %.2f s", frame.name, seconds)
-    log.info("restored %d more photographs into %s/", written, PHOTOS_DIR)
-    return written
+    log.info("restored %d more photographs into %s/", len(sources), PHOTOS_DIR)
+    return sources
+
+
+def write_reprojected(root: str | os.PathLike, frame, images: Mapping[str, np.ndarray],
+                      sources: Sequence[SourceView], downscale: int, scale: float,
+                      photos: PhotoRestoration) -> bool:
+    """``test/<view>/restored_reprojected.*``: the view's restored render with the training
+    photographs' restored detail reprojected into it (``seathru.nerf.reproject``);
+    not written (False) without ``sources`` or an ``opacity`` render."""
+    from seathru.eval.display import to_display
+    from seathru.nerf.reproject import restored_with_detail
+
+    if not sources or "opacity" not in images:
+        return False
+    restored = restored_with_detail(frame, images, sources, downscale,
+                                    photos.reproject_tolerance, photos.reproject_angle)
+    write_float_tiff(render_path(root, frame.name, RESTORED_REPROJECTED), restored)
+    write_display(root, frame.name, RESTORED_REPROJECTED, to_display(restored, scale))
+    return True
 
 
 def write_display(root: str | os.PathLike, view: str, name: str, image: np.ndarray) -> None:

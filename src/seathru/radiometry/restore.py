@@ -31,6 +31,8 @@ from seathru.settings import setting
 
 DEFAULT_MAX_GAIN = 3.0
 DEFAULT_DETAIL_SCALE = 0.05
+DEFAULT_REPROJECT_TOLERANCE = 0.05   # seathru.nerf.reproject
+DEFAULT_REPROJECT_ANGLE = 8.0
 
 
 @dataclass
@@ -39,14 +41,24 @@ class PhotoRestoration:
 
     restore: Literal["none", "test", "all"] = setting("test", help="test: the held-out views' "
         "(test/<view>/restored_photo.*); all: also every training view's (photos/<view>.*; "
-        "one render per view)")
+        "one render per view), and their detail reprojected into the held-out views' restored "
+        "renders (test/<view>/restored_reprojected.*)")
     max_gain: float = setting(DEFAULT_MAX_GAIN, help="the most the photograph minus the full "
                               "render is magnified (one over the least transmission divided out)")
     detail_scale: float = setting(DEFAULT_DETAIL_SCALE, help="only the residual's variations "
                                   "within this share of the image width are carried over (0: all)")
+    reproject_tolerance: float = setting(DEFAULT_REPROJECT_TOLERANCE, help="a training view lends its "
+                                         "detail to a pixel where its rendered range agrees "
+                                         "with the pixel's surface within this share")
+    reproject_angle: float = setting(DEFAULT_REPROJECT_ANGLE, help="degrees between a training "
+                                     "view's ray and the pixel's at which its detail counts "
+                                     "1/e as much as along the ray")
 
     def validate(self) -> None:
         _check_limits(self.max_gain, self.detail_scale)
+        if self.reproject_tolerance <= 0 or not 0 < self.reproject_angle < 180:
+            raise ValueError("reproject_tolerance must be > 0 and reproject_angle in (0, 180), "
+                             f"got {self.reproject_tolerance}, {self.reproject_angle}")
 
 
 def _check_limits(max_gain: float, detail_scale: float) -> None:

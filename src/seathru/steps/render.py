@@ -1,11 +1,11 @@
 """Render held-out views and a camera path: full, restored, depth, backscatter, direct; videos.
 
 Writes ``OUT/test/<view>/`` (linear ``.tiff`` and display ``.png`` of every component, ``gt.png``,
-depth, the view's photograph with the water removed), ``OUT/photos/`` (every photograph restored,
-with ``photos.restore: all``), ``OUT/path/*.mp4`` (a smooth path through the training cameras) and
-``OUT/render_stats.json``: the layout is ``seathru.io.renders``. Display copies share one
-exposure per dataset: the ``exposure_percentile`` of the training images maps to
-``exposure_target`` before sRGB encoding (``seathru.eval.display``); linear outputs are never
+depth, the view's photograph with the water removed), ``OUT/photos/`` (with ``photos.restore:
+all``: every photograph restored, their detail also reprojected into the held-out views),
+``OUT/path/*.mp4`` and ``OUT/render_stats.json``: the layout is ``seathru.io.renders``. Display
+copies share one exposure per dataset: the ``exposure_percentile`` of the training images maps
+to ``exposure_target`` before sRGB encoding (``seathru.eval.display``); linear outputs are never
 scaled. Frames render in ray chunks (``seathru.nerf.inference``), so memory stays bounded at any
 resolution; the output folder appears only once complete.
 """
@@ -118,8 +118,11 @@ def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Map
     scale = display.exposure_scale(samples, percentile, target) if samples else None
     exposure_source = "training images"
     test_frames = sorted(cameras.split("test"), key=lambda f: f.name)
-    test_stats, depth_samples = [], []
+    test_stats, depth_samples, sources = [], [], []
     with atomic_dir(out) as tmp:
+        if cfg.photos.restore == "all" and scale is not None:  # None: no photograph readable
+            sources = renders.restore_all_photos(render_fn, cameras, tmp, scale, cfg.downscale,
+                                                 cfg.photos, {f.name for f in test_frames}, glare)
         for frame, images, seconds in timed_renders(render_fn, test_frames, cfg.downscale):
             if scale is None:  # no readable training image: expose for the first render instead
                 scale = display.exposure_scale([images["rgb"]], percentile, target)
@@ -135,6 +138,7 @@ def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Map
             if truth is not None and cfg.photos.restore != "none":
                 renders.write_restored_photo(tmp, frame.name, photograph, images, scale,
                                              cfg.photos)
+            renders.write_reprojected(tmp, frame, images, sources, cfg.downscale, scale, cfg.photos)
             depth_samples.append(display.sample_values(images["depth"], 20_000))
             test_stats.append(renders.frame_record(frame.name, "test", seconds, images))
             log.info("rendered %s (%dx%d) in %.2f s", frame.name, width, height, seconds)
@@ -146,9 +150,6 @@ def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Map
         for frame in test_frames:
             depth = read_image(renders.render_path(tmp, frame.name, "depth"))
             renders.write_display(tmp, frame.name, "depth", colour(depth))
-        if cfg.photos.restore == "all":
-            renders.restore_all_photos(render_fn, cameras, tmp, scale, cfg.downscale, cfg.photos,
-                                       done={f.name for f in test_frames}, glare=glare)
         path_stats, videos = [], {}
         if cfg.path_frames > 0:
             from seathru.eval.camera_path import path_frames  # scipy.interpolate: seconds
