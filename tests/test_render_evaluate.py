@@ -270,6 +270,7 @@ def test_held_out_views_get_the_training_photographs_detail_by_reprojection(tmp_
     from scipy.ndimage import uniform_filter
 
     from seathru.nerf.rays import camera_rays_np
+    from seathru.nerf.reproject import SourceView
 
     width, height, wall = 64, 48, 5.0
     sigma_a, sigma_b, c_med = (np.asarray(WATER[k]) for k in ("sigma_attn", "sigma_bs", "c_med"))
@@ -316,6 +317,17 @@ def test_held_out_views_get_the_training_photographs_detail_by_reprojection(tmp_
     assert np.abs(reprojected[inner] - truth[inner]).mean() < 0.004
     assert (out / "test" / "wall_2" / "restored_reprojected.png").is_file()
     assert not (out / "test" / "wall_0").exists()
+
+    # a path frame's restored image: the same reprojection, or the render without sources
+    from seathru.io.renders import restored_view
+    from seathru.radiometry.restore import PhotoRestoration
+
+    sources = [SourceView.from_render(f, blurred_dim_render(f, 1), scene[f.name][0])
+               for f in frames if f.split == "train"]
+    images = blurred_dim_render(frames[2], 1)
+    np.testing.assert_allclose(restored_view(frames[2], images, sources, 1, PhotoRestoration()),
+                               reprojected, atol=1e-5)
+    assert restored_view(frames[2], images, [], 1, PhotoRestoration()) is images["restored"]
 
     only_test = tmp_path / "render_test"
     render_dataset(blurred_dim_render, cameras, only_test,

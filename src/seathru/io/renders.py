@@ -14,7 +14,8 @@ Layout::
                               photographs' detail reprojected into it
                               (``seathru.nerf.reproject``; ``photos.restore: all``)
     photos/<view>.{tiff,png}  every camera's photograph restored alike (``photos.restore: all``)
-    path/{full,restored,depth}.mp4   camera-path videos ('mp4v'; odd sizes padded by one pixel)
+    path/{full,restored,depth}.mp4   camera-path videos ('mp4v'; odd sizes padded by one pixel;
+                              restored with the photographs' detail with ``photos.restore: all``)
     render_stats.json         seconds per frame, frames per second, resolution, display
                               exposure, depth range, settings (format seathru-render-stats/1)
 
@@ -269,15 +270,33 @@ def write_reprojected(root: str | os.PathLike, frame, images: Mapping[str, np.nd
     photographs' restored detail reprojected into it (``seathru.nerf.reproject``);
     not written (False) without ``sources`` or an ``opacity`` render."""
     from seathru.eval.display import to_display
-    from seathru.nerf.reproject import restored_with_detail
 
     if not sources or "opacity" not in images:
         return False
-    restored = restored_with_detail(frame, images, sources, downscale,
-                                    photos.reproject_tolerance, photos.reproject_angle)
+    restored = restored_view(frame, images, sources, downscale, photos)
     write_float_tiff(render_path(root, frame.name, RESTORED_REPROJECTED), restored)
     write_display(root, frame.name, RESTORED_REPROJECTED, to_display(restored, scale))
     return True
+
+
+def restored_view(frame, images: Mapping[str, np.ndarray], sources: Sequence[SourceView],
+                  downscale: int, photos: PhotoRestoration) -> np.ndarray:
+    """A rendered view's restored image: with the training photographs' detail reprojected
+    (``seathru.nerf.reproject.restored_with_detail``) where there are ``sources`` and an
+    ``opacity`` render, else the model's restored render."""
+    if not sources or "opacity" not in images:
+        return images["restored"]
+    from seathru.nerf.reproject import restored_with_detail
+
+    return restored_with_detail(frame, images, sources, downscale, photos.reproject_tolerance,
+                                photos.reproject_angle)
+
+
+def write_depth_displays(root: str | os.PathLike, views: Sequence[str], colour) -> None:
+    """``test/<view>/depth.png`` of each view from its ``depth.tiff``, through ``colour``
+    (depth (H, W) -> display image (H, W, 3))."""
+    for view in views:
+        write_display(root, view, "depth", colour(read_image(render_path(root, view, "depth"))))
 
 
 def write_display(root: str | os.PathLike, view: str, name: str, image: np.ndarray) -> None:

@@ -42,7 +42,7 @@ class PhotoRestoration:
     restore: Literal["none", "test", "all"] = setting("test", help="test: the held-out views' "
         "(test/<view>/restored_photo.*); all: also every training view's (photos/<view>.*; "
         "one render per view), and their detail reprojected into the held-out views' restored "
-        "renders (test/<view>/restored_reprojected.*)")
+        "renders (test/<view>/restored_reprojected.*) and the restored path video")
     max_gain: float = setting(DEFAULT_MAX_GAIN, help="the most the photograph minus the full "
                               "render is magnified (one over the least transmission divided out)")
     detail_scale: float = setting(DEFAULT_DETAIL_SCALE, help="only the residual's variations "

@@ -2,7 +2,8 @@
 
 Writes ``OUT/test/<view>/`` (linear ``.tiff`` and display ``.png`` of every component, ``gt.png``,
 depth, the view's photograph with the water removed), ``OUT/photos/`` (with ``photos.restore:
-all``: every photograph restored, their detail also reprojected into the held-out views),
+all``: every photograph restored, their detail reprojected into the held-out views and the
+path's restored video),
 ``OUT/path/*.mp4`` and ``OUT/render_stats.json``: the layout is ``seathru.io.renders``. Display
 copies share one exposure per dataset: the ``exposure_percentile`` of the training images maps
 to ``exposure_target`` before sRGB encoding (``seathru.eval.display``); linear outputs are never
@@ -24,7 +25,6 @@ from seathru.eval import display
 from seathru.io import renders
 from seathru.io.atomic import atomic_dir
 from seathru.io.cameras import CameraSet, read_cameras
-from seathru.io.images import read_image
 from seathru.radiometry.restore import PhotoRestoration
 from seathru.settings import section, setting
 
@@ -147,9 +147,7 @@ def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Map
         def colour(depth):  # one colour scale for every depth image and video frame
             return display.colourise_depth(depth, *depth_range, cfg.depth_cmap)
 
-        for frame in test_frames:
-            depth = read_image(renders.render_path(tmp, frame.name, "depth"))
-            renders.write_display(tmp, frame.name, "depth", colour(depth))
+        renders.write_depth_displays(tmp, [f.name for f in test_frames], colour)
         path_stats, videos = [], {}
         if cfg.path_frames > 0:
             from seathru.eval.camera_path import path_frames  # scipy.interpolate: seconds
@@ -157,8 +155,10 @@ def render_dataset(render_fn, cameras: CameraSet, out: Path, cfg: Settings | Map
             with renders.PathVideos(tmp / "path", cfg.fps) as writer:
                 for frame, images, seconds in timed_renders(
                         render_fn, path_frames(cameras, cfg.path_frames), cfg.video_downscale):
+                    restored = renders.restored_view(frame, images, sources,
+                                                     cfg.video_downscale, cfg.photos)
                     writer.write({"full": display.to_display(images["rgb"], scale),
-                                  "restored": display.to_display(images["restored"], scale),
+                                  "restored": display.to_display(restored, scale),
                                   "depth": colour(images["depth"])})
                     path_stats.append(renders.frame_record(frame.name, "path", seconds, images))
                 videos = writer.check(cfg.path_frames)
