@@ -146,7 +146,7 @@ def test_the_training_views_detail_is_their_restored_photograph_less_their_rende
               "restored": np.full((2, 2, 3), 0.25)}
     source = SourceView.from_render(cam, images, np.full((2, 2, 3), 0.5), downscale=32)
     np.testing.assert_allclose(source.detail, 0.25)
-    assert source.detail.dtype == np.float32 and source.downscale == 32
+    assert source.detail.dtype == np.float16 and source.downscale == 32
 
 
 def test_a_depth_not_rendered_at_the_given_downscale_is_refused():
@@ -160,3 +160,17 @@ def test_settings_out_of_range_are_refused(tolerance, angle):
     view = camera()
     with pytest.raises(ValueError, match="tolerance"):
         reprojected_detail(view, plane_range(view), [], 1, tolerance, angle)
+
+
+def test_only_the_sources_that_lend_most_are_read():
+    view = camera(0.0)
+    depth = plane_range(view)
+    near = [source_of(camera(x, name=f"near{x}"), detail=[1.0, 1.0, 1.0]) for x in (-0.05, 0.05)]
+    far = [source_of(camera(x, name=f"far{x}"), detail=[0.0, 0.0, 0.0])
+           for x in (-2.0, -1.5, 1.5, 2.0)]
+    detail, weight = reprojected_detail(view, depth, far + near, max_sources=2)
+    seen = weight > 0
+    assert seen.mean() > 0.9
+    np.testing.assert_allclose(detail[seen], 1.0, atol=1e-3)
+    everything, _ = reprojected_detail(view, depth, far + near, max_sources=6)
+    assert everything[seen].min() < 0.999
