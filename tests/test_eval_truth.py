@@ -176,3 +176,22 @@ def test_view_truth_metrics_scores_the_covered_pixels_apart():
     without = truth.view_truth_metrics(**common)
     assert "restored_psnr_linear_covered" not in without
     assert "full_vs_water_psnr_linear_covered" not in without
+
+
+def test_the_restored_photograph_and_the_reprojected_view_are_scored_alike():
+    rng = np.random.default_rng(3)
+    clean = rng.uniform(0.1, 0.9, (16, 16, 3))
+    truth_depth = rng.uniform(1.0, 5.0, (16, 16))
+    covered = np.ones((16, 16), dtype=bool)
+    covered[:, :4] = False
+    exact = clean / GAIN
+    off = exact.copy()
+    off[:, :4] *= 0.5                                       # wrong only where nothing sees
+    common = dict(full=exact, restored=exact, depth=truth_depth, clean=clean, water=clean,
+                  truth_depth=truth_depth, gain=GAIN, metres_per_unit=1.0, covered=covered)
+    row = truth.view_truth_metrics(**common, restored_photo=exact, reprojected=off)
+    assert row["photo_restored_psnr_linear"] == float("inf")
+    assert row["reprojected_restored_psnr_linear"] < 30
+    assert row["reprojected_restored_ssim_linear"] < row["photo_restored_ssim_linear"]
+    assert row["reprojected_restored_psnr_linear_covered"] == float("inf")
+    assert not any(key.startswith("reprojected") for key in truth.view_truth_metrics(**common))

@@ -175,18 +175,15 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
         extra = {"restored_psnr_linear_covered": covered_psnr(restored, clean),
                  "full_vs_water_psnr_linear_covered": covered_psnr(full, water),
                  "covered_share": float(seen.sum() / max(int(defined.sum()), 1))}
-    if restored_photo is not None:
-        photo_m = metrics.image_metrics(gain * restored_photo, clean, valid=defined)
-        extra["photo_restored_psnr_linear"] = photo_m["psnr_linear"]
-        extra["photo_restored_ssim_linear"] = photo_m["ssim_linear"]
+    for prefix, image in (("photo_restored", restored_photo),
+                          ("reprojected_restored", reprojected)):
+        if image is None:
+            continue
+        scores = metrics.image_metrics(gain * image, clean, valid=defined)
+        extra[f"{prefix}_psnr_linear"] = scores["psnr_linear"]
+        extra[f"{prefix}_ssim_linear"] = scores["ssim_linear"]
         if covered is not None:
-            extra["photo_restored_psnr_linear_covered"] = covered_psnr(restored_photo, clean)
-    if reprojected is not None:
-        reprojected_m = metrics.image_metrics(gain * reprojected, clean, valid=defined)
-        extra["reprojected_restored_psnr_linear"] = reprojected_m["psnr_linear"]
-        extra["reprojected_restored_ssim_linear"] = reprojected_m["ssim_linear"]
-        if covered is not None:
-            extra["reprojected_restored_psnr_linear_covered"] = covered_psnr(reprojected, clean)
+            extra[f"{prefix}_psnr_linear_covered"] = covered_psnr(image, clean)
     return {
         "restored_psnr_linear": restored_m["psnr_linear"],
         "restored_ssim_linear": restored_m["ssim_linear"],
