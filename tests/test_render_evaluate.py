@@ -326,7 +326,7 @@ def test_held_out_views_get_the_training_photographs_detail_by_reprojection(tmp_
                for f in frames if f.split == "train"]
     images = blurred_dim_render(frames[2], 1)
     np.testing.assert_allclose(restored_view(frames[2], images, sources, 1, PhotoRestoration()),
-                               reprojected, atol=1e-5)
+                               reprojected, atol=1e-3)   # the sources' detail in half precision
     assert restored_view(frames[2], images, [], 1, PhotoRestoration()) is images["restored"]
 
     only_test = tmp_path / "render_test"
