@@ -3,12 +3,12 @@
 Writes ``OUT/test/<view>/`` (linear ``.tiff`` and display ``.png`` of every component, ``gt.png``,
 depth, the view's photograph with the water removed), ``OUT/photos/`` (with ``photos.restore:
 all``: every photograph restored, their detail reprojected into the held-out views and the
-path's restored video),
-``OUT/path/*.mp4`` and ``OUT/render_stats.json``: the layout is ``seathru.io.renders``. Display
-copies share one exposure per dataset: the ``exposure_percentile`` of the training images maps
-to ``exposure_target`` before sRGB encoding (``seathru.eval.display``); linear outputs are never
-scaled. Frames render in ray chunks (``seathru.nerf.inference``), so memory stays bounded at any
-resolution; the output folder appears only once complete.
+path's restored video), ``OUT/path/*.mp4`` and ``OUT/render_stats.json``: the layout is
+``seathru.io.renders``. Display copies share one exposure per dataset: the
+``exposure_percentile`` of the training images maps to ``exposure_target`` before sRGB encoding
+(``seathru.eval.display``); linear outputs are never scaled. Frames render in ray chunks
+(``seathru.nerf.inference``), so memory stays bounded at any resolution; the output folder
+appears only once complete.
 """
 
 from __future__ import annotations
