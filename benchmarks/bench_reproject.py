@@ -35,54 +35,32 @@ OUT = REPO / "benchmarks" / "results" / "reproject.md"
 
 
 def score_run(run: Path, settings: list[tuple[float, float]], work: Path) -> list[dict]:
-    """Per setting and held-out view: the three restorations' PSNR and the reprojection's
-    seconds."""
-    import torch
-
-    from seathru.io.cameras import read_cameras
-    from seathru.io.evaluation import truth_evaluation
-    from seathru.io.model import load_model
-    from seathru.io.water import read_water
+    """Per setting and held-out view: the three restorations' PSNR (the render step at each
+    setting, ``bench_restored_photo.scored_photo_settings``) and the reprojection's seconds."""
+    from bench_restored_photo import scored_photo_settings
     from seathru.nerf import reproject
-    from seathru.nerf.inference import frame_renderer
-    from seathru.steps.render import render_dataset
-
-    torch.set_num_threads(2)
-    cameras = read_cameras(run / "poses" / "cameras.json")
-    model_render = frame_renderer(load_model(run / "train" / "model.pt", torch.device("cpu")))
-    cache: dict[str, dict] = {}
-
-    def render_fn(frame, downscale: int) -> dict:   # each view rendered once for every setting
-        if frame.name not in cache:
-            cache[frame.name] = model_render(frame, downscale)
-        return cache[frame.name]
 
     seconds: list[float] = []
     timed = reproject.restored_with_detail
 
-    def timing(*args, **kwargs):
+    def timing(*args, **kwargs):   # the render step calls it once per held-out view
         start = time.perf_counter()
         result = timed(*args, **kwargs)
         seconds.append(time.perf_counter() - start)
         return result
 
-    water = read_water(run / "train" / "water.json", missing_ok=True)
-    rows = []
+    photos = [{"restore": "all", "reproject_tolerance": tolerance, "reproject_angle": angle}
+              for tolerance, angle in settings]
     reproject.restored_with_detail = timing
     try:
-        for tolerance, angle in settings:
-            out = work / f"{run.name}_{tolerance:g}_{angle:g}"
-            seconds.clear()
-            render_dataset(render_fn, cameras, out, {"path_frames": 0, "photos": {
-                "restore": "all", "reproject_tolerance": tolerance, "reproject_angle": angle}})
-            views = [{"view": f.name} for f in sorted(cameras.split("test"), key=lambda f: f.name)]
-            truth_evaluation(run / "simulate" / "truth", out, cameras, views, water)
-            label = f"{run.parents[1].name}/{run.name}"   # <clone>/results/<dataset>
-            rows += [{"run": label, "setting": (tolerance, angle), "seconds": s, **view}
-                     for view, s in zip(views, seconds)]
+        scored = scored_photo_settings(run, photos, work)
     finally:
         reproject.restored_with_detail = timed
-    return rows
+    label = f"{run.parents[1].name}/{run.name}"   # <clone>/results/<dataset>
+    views = [view for per_setting in scored for view in per_setting]
+    keys = [setting for setting, per_setting in zip(settings, scored) for _ in per_setting]
+    return [{"run": label, "setting": setting, "seconds": s, **view}
+            for setting, view, s in zip(keys, views, seconds)]
 
 
 def table(rows: list[dict]) -> list[str]:

@@ -46,9 +46,10 @@ sys.path.insert(0, str(REPO / "src"))
 OUT = REPO / "benchmarks" / "results" / "restored_photo.md"
 
 
-def score_run(run: Path, settings: list[tuple[float, float]], work: Path) -> list[dict]:
-    """Per setting and held-out view: the restored render's and the restored photograph's
-    PSNR."""
+def scored_photo_settings(run: Path, photos: list[dict], work: Path) -> list[list[dict]]:
+    """The render step on a finished simulated run at each of ``photos`` (``render.photos``
+    settings), every view rendered once for all of them, the held-out views scored as the
+    evaluate step scores them (``truth_evaluation``): per setting, a row per held-out view."""
     import torch
 
     from seathru.io.cameras import read_cameras
@@ -60,17 +61,33 @@ def score_run(run: Path, settings: list[tuple[float, float]], work: Path) -> lis
 
     torch.set_num_threads(2)
     cameras = read_cameras(run / "poses" / "cameras.json")
-    render_fn = frame_renderer(load_model(run / "train" / "model.pt", torch.device("cpu")))
+    model_render = frame_renderer(load_model(run / "train" / "model.pt", torch.device("cpu")))
+    renders: dict[tuple[str, int], dict] = {}
+
+    def render_fn(frame, downscale: int) -> dict:
+        if (frame.name, downscale) not in renders:
+            renders[frame.name, downscale] = model_render(frame, downscale)
+        return renders[frame.name, downscale]
+
     water = read_water(run / "train" / "water.json", missing_ok=True)
-    rows = []
-    for setting in settings:
-        out = work / f"{run.name}_{setting[0]:g}_{setting[1]:g}"
-        render_dataset(render_fn, cameras, out, {"path_frames": 0, "photos": {
-            "restore": "test", "max_gain": setting[0], "detail_scale": setting[1]}})
+    scored = []
+    for index, setting in enumerate(photos):
+        out = work / f"{run.name}_{index}"
+        render_dataset(render_fn, cameras, out, {"path_frames": 0, "photos": setting})
         views = [{"view": f.name} for f in sorted(cameras.split("test"), key=lambda f: f.name)]
         truth_evaluation(run / "simulate" / "truth", out, cameras, views, water)
-        rows += [{"run": run.name, "setting": setting, **view} for view in views]
-    return rows
+        scored.append(views)
+    return scored
+
+
+def score_run(run: Path, settings: list[tuple[float, float]], work: Path) -> list[dict]:
+    """Per setting and held-out view: the restored render's and the restored photograph's
+    PSNR."""
+    photos = [{"restore": "test", "max_gain": gain, "detail_scale": scale}
+              for gain, scale in settings]
+    return [{"run": run.name, "setting": setting, **view}
+            for setting, views in zip(settings, scored_photo_settings(run, photos, work))
+            for view in views]
 
 
 def score_water_dive(sim: Path, settings: list[tuple[float, float]]
