@@ -463,6 +463,53 @@ def test_file_selection_kinds_duplicates_and_hints(tmp_path):
         resolve_input(tmp_path, "images_wb")
 
 
+def _textured_jpeg(progressive: bool = False, size=(96, 128), seed: int = 3) -> bytes:
+    rng = np.random.default_rng(seed)
+    image = cv2.resize(rng.integers(0, 256, (12, 16, 3), dtype=np.uint8), size[::-1],
+                       interpolation=cv2.INTER_CUBIC)
+    ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95,
+                                            cv2.IMWRITE_JPEG_PROGRESSIVE, int(progressive)])
+    assert ok
+    return data.tobytes()
+
+
+def _with_thumbnail(jpeg: bytes) -> bytes:
+    """The JPEG with an EXIF-like APP1 segment holding a whole small JPEG (its own end marker)
+    right after the start marker, as camera files carry their thumbnail."""
+    payload = b"Exif\x00\x00" + _textured_jpeg(size=(16, 16))
+    return jpeg[:2] + b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload + jpeg[2:]
+
+
+@pytest.mark.parametrize("progressive", [False, True])
+def test_a_jpeg_cut_short_is_refused_and_a_whole_one_decodes(tmp_path, progressive):
+    whole = _with_thumbnail(_textured_jpeg(progressive))
+    assert b"\xff\xd9" in whole[:len(whole) // 4]  # the thumbnail's end marker, early on
+    path = tmp_path / "frame.jpg"
+    for data in (whole, whole + b"\x00" * 64 + b"maker trailer"):
+        path.write_bytes(data)
+        assert rawio.read_encoded(path, "srgb").image.shape == (96, 128, 3)
+    for cut in (len(whole) // 2, len(whole) - 200, len(whole) - 2, 40):
+        path.write_bytes(whole[:cut])
+        assert rawio.jpeg_cut_short(whole[:cut])
+        with pytest.raises(rawio.DecodeError, match="stops before its end-of-image marker"):
+            rawio.read_encoded(path, "srgb")
+
+
+def test_a_cut_jpeg_among_whole_ones_is_rejected_by_name(tmp_path):
+    folder = tmp_path / "DCIM"
+    folder.mkdir()
+    for index in range(3):
+        (folder / f"GOPR000{index}.JPG").write_bytes(_textured_jpeg(seed=index))
+    whole = _textured_jpeg(seed=9)
+    (folder / "GOPR0009.JPG").write_bytes(whole[:len(whole) // 3])
+    manifest = run_ingest("--input", folder, "--out", tmp_path / "out", "--min-images", 3,
+                          "--workers", 1)
+    assert [image["name"] for image in manifest["images"]] == ["GOPR0000", "GOPR0001",
+                                                               "GOPR0002"]
+    assert [r["file"] for r in manifest["rejected"]] == ["GOPR0009.JPG"]
+    assert "end-of-image marker" in manifest["rejected"][0]["reason"]
+
+
 # --- pure helpers ---------------------------------------------------------------------------
 
 def test_exif_orientation_codes():

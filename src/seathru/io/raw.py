@@ -307,6 +307,47 @@ def detect_kind(path: str | Path) -> str | None:
     return None
 
 
+def jpeg_cut_short(data: bytes) -> bool:
+    """Whether a JPEG file stops before its end-of-image marker, as a copy cut short does.
+
+    OpenCV's decoder only warns on stderr and fills the missing rows grey. The segments before
+    the first scan are skipped by their lengths (an EXIF thumbnail holds an end marker of its
+    own); in the scan data a 0xFF byte is always followed by 0x00 or a restart marker, so the
+    first 0xFF 0xD9 after the scan header is the image's end. A stream laid out otherwise is
+    left to the decoder (False).
+
+    Args:
+        data: the file's bytes.
+
+    Returns:
+        True where the data ends before the end marker.
+
+    Example:
+        >>> ok, jpeg = cv2.imencode(".jpg", np.zeros((8, 8, 3), np.uint8))
+        >>> jpeg_cut_short(jpeg.tobytes()), jpeg_cut_short(jpeg.tobytes()[:-40])
+        (False, True)
+    """
+    if data[:2] != b"\xff\xd8":
+        return False
+    position = 2
+    while position + 4 <= len(data):
+        if data[position] != 0xFF:
+            return False
+        marker = data[position + 1]
+        if marker == 0xFF:  # fill byte before a marker
+            position += 1
+        elif marker == 0x01 or 0xD0 <= marker <= 0xD8:  # markers without a length
+            position += 2
+        elif marker == 0xD9:  # an end before any scan
+            return False
+        else:
+            end = position + 2 + int.from_bytes(data[position + 2:position + 4], "big")
+            if marker == 0xDA:  # start of scan
+                return data.find(b"\xff\xd9", end) < 0
+            position = end
+    return True
+
+
 def _read_array(path: Path) -> np.ndarray:
     if path.suffix.lower() in (".tif", ".tiff"):
         try:
@@ -317,7 +358,13 @@ def _read_array(path: Path) -> np.ndarray:
         if array.ndim == 3 and array.shape[0] in (3, 4) and array.shape[2] not in (3, 4):
             array = np.moveaxis(array, 0, -1)  # planar-separate TIFF
     else:
-        array = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)  # never applies EXIF orientation
+        data = path.read_bytes()
+        if path.suffix.lower() in (".jpg", ".jpeg") and jpeg_cut_short(data):
+            raise DecodeError("the JPEG data stops before its end-of-image marker (a copy cut "
+                              "short?): the decoder would fill the missing rows grey; copy the "
+                              "file again from the camera")
+        # never applies EXIF orientation
+        array = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
         if array is None:
             raise DecodeError("cannot be read as an image (corrupt, truncated or unsupported)")
         if array.ndim == 3:
