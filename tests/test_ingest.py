@@ -23,8 +23,8 @@ from seathru.errors import PipelineError
 from seathru.io import raw as rawio
 from seathru.io.dataset_readers import frame_names, layout_images, read_source_mask
 from seathru.io.images import read_mask
-from seathru.io.image_folder import (every_image_file, image_subfolders, resolve_input,
-                                     select_files, select_paths)
+from seathru.io.image_folder import (every_image_file, find_inputs, image_subfolders,
+                                     resolve_input, select_files, select_paths)
 from seathru.steps import ingest
 
 rawpy = pytest.importorskip("rawpy")
@@ -510,6 +510,29 @@ def test_a_cut_jpeg_among_whole_ones_is_rejected_by_name(tmp_path):
     assert "end-of-image marker" in manifest["rejected"][0]["reason"]
 
 
+def test_a_camera_card_with_one_image_folder_is_read_from_it(tmp_path):
+    card = tmp_path / "card"
+    folder = card / "DCIM" / "100GOPRO"
+    folder.mkdir(parents=True)
+    for index in range(3):
+        (folder / f"GOPR000{index}.JPG").write_bytes(_textured_jpeg(seed=index))
+    (folder / "GOPR0000.THM").write_bytes(b"thumbnail")
+    (card / "MISC").mkdir()
+    (card / "MISC" / "version.txt").write_text("camera firmware")
+    found = find_inputs(card, None, None, "auto", "auto")
+    assert found.folder == folder and found.subdir == "DCIM/100GOPRO"
+    assert [name for _, name, _ in found.selected] == ["GOPR0000", "GOPR0001", "GOPR0002"]
+    assert "DCIM/100GOPRO, the only subfolder with images" in found.reason
+    manifest = run_ingest("--input", card, "--out", tmp_path / "out", "--workers", 1)
+    assert manifest["input"]["subdir"] == "DCIM/100GOPRO" and len(manifest["images"]) == 3
+
+    (card / "DCIM" / "101GOPRO").mkdir()
+    (card / "DCIM" / "101GOPRO" / "GOPR0100.JPG").write_bytes(_textured_jpeg(seed=7))
+    with pytest.raises(PipelineError, match="DCIM/100GOPRO \\(3\\), DCIM/101GOPRO \\(1\\)"):
+        find_inputs(card, None, None, "auto", "auto")
+    assert len(find_inputs(card, None, None, "all", "auto").selected) == 4
+
+
 # --- pure helpers ---------------------------------------------------------------------------
 
 def test_exif_orientation_codes():
@@ -888,7 +911,10 @@ def test_ingest_of_the_release_layout_reads_images_wb_as_linear(tmp_path):
 
 def test_images_setting_names_the_subfolder_of_a_plain_source(tmp_path):
     _pngs(tmp_path / "dive" / "images", ["a.png", "b.png", "c.png"])
-    with pytest.raises(PipelineError, match="subfolders with images: images"):
+    assert find_inputs(tmp_path / "dive", None, None, "auto", "auto").subdir == "images"
+    (tmp_path / "dive" / "sparse" / "0").mkdir(parents=True)  # a COLMAP layout: ask
+    with pytest.raises(PipelineError, match="subfolders with images: images.*source llff, "
+                                            "colmap or nerfstudio"):
         run_ingest("--input", tmp_path / "dive", "--out", tmp_path / "out")
     manifest = run_ingest("--input", tmp_path / "dive", "--images", "images", "--out",
                           tmp_path / "out", "--workers", 1)

@@ -82,6 +82,22 @@ def image_subfolders(folder: Path, depth: int = 3) -> list[tuple[str, int]]:
     return sorted((name, count) for name, count in counts if count)
 
 
+#: Files and folders of the posed layouts (llff, nerfstudio, colmap): a folder holding one is
+#: not read as a plain folder of images without being asked.
+POSED_LAYOUT_MARKS = ("poses_bounds.npy", "transforms.json", "sparse")
+
+
+def _only_image_subfolder(folder: Path) -> str | None:
+    """The one subfolder of ``folder`` that holds images or videos (3 levels down at most,
+    relative POSIX path), or None where none or several do, or where ``folder`` holds a posed
+    layout's files (:data:`POSED_LAYOUT_MARKS`)."""
+    if any((folder / mark).exists() for mark in POSED_LAYOUT_MARKS):
+        return None
+    holding = [sub for sub in _folders_below(folder, 3)
+               if any(detect_kind(f) or is_video(f) for f in _visible_files(sub))]
+    return holding[0].relative_to(folder).as_posix() if len(holding) == 1 else None
+
+
 def every_image_file(folder: Path) -> list[tuple[Path, str]]:
     """Every file under ``folder``, subfolders included (hidden ones and links to folders
     skipped), as ``(path, name)`` in path order. The name is the file's stem; where a stem
@@ -253,6 +269,8 @@ def find_inputs(given: Path, subdir: str | None, layout: str | None, images: str
     files of ``given/subdir`` (``subdir`` or, unless ``auto`` or :data:`EVERY_FOLDER`,
     ``images``; else ``given``), and with ``images`` :data:`EVERY_FOLDER` those of its
     subfolders too.
+    With ``images`` ``auto``, a folder holding no images of its own but one subfolder that does
+    (a camera card's ``DCIM/100GOPRO``) gives that subfolder's (``reason`` says so).
     ``kind`` ``auto`` becomes ``linear`` for a layout folder documented as linear (images_wb).
     A folder of videos and no photographs gives their frames (:class:`InputImages` ``videos``).
     """
@@ -261,11 +279,24 @@ def find_inputs(given: Path, subdir: str | None, layout: str | None, images: str
         named = subdir or (None if images in ("auto", EVERY_FOLDER) else images)
         folder = resolve_input(Path(given), named)
         files = folder_files(folder, every_folder)
+        reason = ""
+        if named is None and images == "auto" and not any(
+                detect_kind(path) or is_video(path) for path, _ in files):
+            only = _only_image_subfolder(folder)
+            if only is not None:
+                # a camera card (DCIM/100GOPRO): one folder of images is what was meant
+                named, folder = only, folder / only
+                files = folder_files(folder)
+                reason = (f"ingest.images auto: {only}, the only subfolder with images "
+                          f"(ingest.images=all to take every subfolder)")
         videos = [(path, name) for path, name in files if is_video(path)]
         if videos and not any(detect_kind(path) for path, _ in files):
-            return _video_inputs(folder, named, files, videos, kind)
+            found = _video_inputs(folder, named, files, videos, kind)
+            found.reason = reason
+            return found
         photos = [(path, name) for path, name in files if not is_video(path)]
-        found = InputImages(folder, named, *select_files(folder, kind, every_folder, photos))
+        found = InputImages(folder, named, *select_files(folder, kind, every_folder, photos),
+                            reason=reason)
         found.rejected += [{"file": path.name, "reason": (
             "a video beside photographs: the photographs are used (give the video a dataset "
             "row of its own to take frames from it)")} for path, _ in videos]
