@@ -133,7 +133,12 @@ def test_failure_message_lists_attempts_and_advice():
     assert "registered only 2 of 7 images" in message and "need 80%" in message
     assert "exhaustive matching + global mapping, seed 0: 0/7 (RuntimeError: no model)" in message
     assert "Unregistered: im0, im1, im2, im3, im4" in message
-    assert "--focal-px" in message and "--max-features" in message
+    # the advice is in the sheet's syntax and leaves out what was tried
+    assert "poses.focal_px" in message and "poses.max_features=16384" in message
+    assert "poses.matcher" not in message and "poses.mapper" not in message and "--" not in message
+    once = failure_message(attempts[:1], attempts[0], 7, QualityGate(), clahe=False)
+    assert "poses.matcher=exhaustive" in once and "poses.mapper=global" in once
+    assert "poses.clahe=true" in once and "poses.overlap" not in once
     assert failure_message([], None, 3, QualityGate()).startswith(
         "COLMAP registered only 0 of 3 images")
 

@@ -580,8 +580,10 @@ def test_unrelated_images_fail_with_advice_and_leave_nothing(tmp_path):
         run_poses("--ingest", str(ingest), "--out", str(out), "--threads", THREADS)
     message = str(failure.value)
     assert "registered only 0 of 7 images" in message
-    for advice in ("--matcher exhaustive", "--max-features", "--max-image-size", "--focal-px"):
+    for advice in ("poses.max_features=16384", "poses.max_image_size", "poses.focal_px",
+                   "poses.clahe=false"):
         assert advice in message
+    assert "poses.matcher" not in message  # both matchers were tried
     assert "global mapping" in message and "exhaustive matching" in message  # retries listed
     # seven photographs of seven things: none shares a matched feature with another
     assert "No image shares 15 verified feature matches with any other image" in message

@@ -285,10 +285,11 @@ def _unmatched(matched: dict[str, int], features: dict[str, int], total: int) ->
 
 def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total: int,
                     gate: QualityGate, matched: dict[str, int] | None = None,
-                    features: dict[str, int] | None = None) -> str:
-    """Why no model registers enough images: every attempt, and what to try next.
-    ``matched`` (verified inliers of each image's best pair) and ``features`` (SIFT keypoints
-    per image), by image name: to name the views that have nothing to match."""
+                    features: dict[str, int] | None = None, clahe: bool = True) -> str:
+    """Why no model registers enough images: every attempt, and what to try next (sheet
+    syntax). ``matched`` (verified inliers of each image's best pair) and ``features`` (SIFT
+    keypoints per image), by image name: to name the views that have nothing to match;
+    ``clahe``: whether the matching copies were equalised."""
     registered = chosen.registered if chosen else 0
     tried = "; ".join(
         f"{a.settings['matcher']} matching + {a.settings['mapper']} mapping, seed "
@@ -301,12 +302,27 @@ def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total
            if total < FEW_IMAGES else "")
     return (f"COLMAP registered only {registered} of {total} images in its largest model "
             f"(need {gate.min_registered_fraction:.0%}).{few}"
-            f"{_unmatched(matched or {}, features or {}, total)} Tried: {tried}. Try --matcher "
-            f"exhaustive for an unordered set or a larger --overlap for an ordered transect, "
-            f"more features (--max-features 16384), a larger --max-image-size, a known focal "
-            f"length (--focal-px or --focal-mm with --sensor-width-mm), or remove images that "
-            f"do not overlap the others"
+            f"{_unmatched(matched or {}, features or {}, total)} Tried: {tried}. Try "
+            f"{', '.join(_sheet_advice(attempts, clahe, max_features=16384))}, or remove images "
+            f"that do not overlap the others"
             + (f". Unregistered: {listed}" if unregistered else ""))
+
+
+def _sheet_advice(attempts: list[SfmAttempt], clahe: bool, max_features: int | None = None
+                  ) -> list[str]:
+    """The poses options worth trying next, in the dataset sheet's syntax: the matchers and
+    mappers no attempt used, then the settings no retry changes (``max_features``: a value to
+    suggest)."""
+    tried = {(a.settings.get("matcher"), a.settings.get("mapper")) for a in attempts}
+    advice = [f"poses.matcher={m}" for m in MATCHERS if m not in {t[0] for t in tried}]
+    advice += [f"poses.mapper={m}" for m in MAPPERS if m not in {t[1] for t in tried}]
+    if not attempts or {t[0] for t in tried} == set(MATCHERS):
+        advice.append("a larger poses.overlap")
+    features = f"poses.max_features={max_features}" if max_features else "more poses.max_features"
+    return advice + ["a larger poses.max_image_size (-1: full size)",
+                     f"poses.clahe={'false' if clahe else 'true'}", features,
+                     "a known focal length (poses.focal_px, or poses.focal_mm with "
+                     "poses.sensor_width_mm)"]
 
 
 def unconfirmed_message(attempts: list[SfmAttempt], chosen: SfmAttempt, gate: QualityGate,
@@ -347,14 +363,7 @@ def unconfirmed_message(attempts: list[SfmAttempt], chosen: SfmAttempt, gate: Qu
     if not disagreements and not reasons:
         reasons.append("no independent model (the other mapper or matcher) passed the gate to "
                        "confirm it")
-    tried = {(a.settings.get("matcher"), a.settings.get("mapper")) for a in attempts}
-    advice = [f"poses.matcher={m}" for m in MATCHERS if m not in {t[0] for t in tried}]
-    advice += [f"poses.mapper={m}" for m in MAPPERS if m not in {t[1] for t in tried}]
-    if {t[0] for t in tried} == set(MATCHERS):
-        advice.append("a larger poses.overlap")
-    advice += ["a larger poses.max_image_size (-1: full size)",
-               f"poses.clahe={'false' if clahe else 'true'}", "more poses.max_features",
-               "a known focal length (poses.focal_px)"]
+    advice = _sheet_advice(attempts, clahe)
     ending = ("kept because poses.on_unconfirmed=warn: the model is trained on cameras that "
               "may be wrong" if kept else
               "or keep it with poses.on_unconfirmed=warn (the report then shows this)")

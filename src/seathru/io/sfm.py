@@ -418,7 +418,8 @@ def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: Q
     if chosen is None or chosen.registered_fraction < gate.min_registered_fraction:
         by_view = [{Path(file).stem: count for file, count in counts.items()}
                    for counts in (result.matched, result.features)]
-        raise PipelineError(failure_message(result.attempts, chosen, len(names), gate, *by_view))
+        raise PipelineError(failure_message(result.attempts, chosen, len(names), gate, *by_view,
+                                            clahe=clahe))
     gate_message = None
     if not chosen.passed:
         gate_message = unconfirmed_message(result.attempts, chosen, gate, clahe,
