@@ -493,6 +493,9 @@ def test_a_jpeg_cut_short_is_refused_and_a_whole_one_decodes(tmp_path, progressi
         assert rawio.jpeg_cut_short(whole[:cut])
         with pytest.raises(rawio.DecodeError, match="stops before its end-of-image marker"):
             rawio.read_encoded(path, "srgb")
+    (tmp_path / "folder.jpg").mkdir()
+    with pytest.raises(rawio.DecodeError, match="cannot be read"):
+        rawio.read_encoded(tmp_path / "folder.jpg", "srgb")
 
 
 def test_a_cut_jpeg_among_whole_ones_is_rejected_by_name(tmp_path):

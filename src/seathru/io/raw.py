@@ -358,7 +358,10 @@ def _read_array(path: Path) -> np.ndarray:
         if array.ndim == 3 and array.shape[0] in (3, 4) and array.shape[2] not in (3, 4):
             array = np.moveaxis(array, 0, -1)  # planar-separate TIFF
     else:
-        data = path.read_bytes()
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            raise DecodeError(f"cannot be read ({exc.strerror or exc})") from exc
         if path.suffix.lower() in (".jpg", ".jpeg") and jpeg_cut_short(data):
             raise DecodeError("the JPEG data stops before its end-of-image marker (a copy cut "
                               "short?): the decoder would fill the missing rows grey; copy the "

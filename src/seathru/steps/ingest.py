@@ -76,9 +76,8 @@ class Settings:
     stats_pixels: int = setting(
         100_000, help="pixels sampled per image for dataset statistics")
     images: str = setting(
-        "auto", help="image folder in the path: auto (llff: images_wb first; a path with no "
-                     "images of its own: its one subfolder with images), a name (images_4, "
-                     "DCIM/100GOPRO, ...) or all: every image under the path, subfolders too")
+        "auto", help="image folder: auto (llff: images_wb; else the path or its one image "
+                     "subfolder), a name (images_4, DCIM/100GOPRO) or all (subfolders too)")
     warn_clipped_share: float = setting(
         0.1, help="warn about images with more than this share of clipped pixels")
     video_interval: float = setting(
