@@ -195,3 +195,12 @@ def test_the_restored_photograph_and_the_reprojected_view_are_scored_alike():
     assert row["reprojected_restored_ssim_linear"] < row["photo_restored_ssim_linear"]
     assert row["reprojected_restored_psnr_linear_covered"] == float("inf")
     assert not any(key.startswith("reprojected") for key in truth.view_truth_metrics(**common))
+
+    supported = np.zeros((16, 16), dtype=bool)
+    supported[:, 2:] = True                                 # half the wrong columns backed
+    backed = truth.view_truth_metrics(**common, reprojected=off, supported=supported)
+    expected = metrics.image_metrics(GAIN * off, clean, valid=supported)["psnr_linear"]
+    assert backed["reprojected_restored_psnr_linear_supported"] == pytest.approx(expected)
+    assert row["reprojected_restored_psnr_linear"] < expected < float("inf")
+    assert backed["supported_share"] == pytest.approx(14 / 16)
+    assert "supported_share" not in truth.view_truth_metrics(**common, supported=supported)

@@ -253,6 +253,9 @@ def test_restored_photographs_undo_what_the_model_got_wrong(tmp_path, fake):
     # scored alike (the wiring; what reprojection gives: the wall test above)
     assert table["reprojected_restored_psnr_linear"].notna().all()
     assert table["reprojected_restored_psnr_linear_covered"].notna().all()
+    # these views lie far apart: nothing backs their pixels (the supported score is NaN)
+    assert "reprojected_restored_psnr_linear_supported" in table
+    assert (table["supported_share"] == 0).all()
 
     none = tmp_path / "render_none"
     render_dataset(dim_render, cameras, none, {**RENDER_SETTINGS, "path_frames": 0,
@@ -316,6 +319,13 @@ def test_held_out_views_get_the_training_photographs_detail_by_reprojection(tmp_
     np.testing.assert_allclose(reprojected[inner], truth[inner], atol=0.02)
     assert np.abs(reprojected[inner] - truth[inner]).mean() < 0.004
     assert (out / "test" / "wall_2" / "restored_reprojected.png").is_file()
+    # the support: two training views on each side, 2.3 and 4.6 degrees off the view's rays
+    support = read_image(out / "test" / "wall_2" / "restored_support.tiff")
+    assert support.shape == (height, width) and (support[inner] > 2.5).all()
+    angles = np.arctan([0.2 / wall, 0.4 / wall])
+    expected = 2 * np.exp(-(1 - np.cos(angles)) / (1 - np.cos(np.radians(8.0)))).sum()
+    assert support[height // 2, width // 2] == pytest.approx(expected, rel=0.01)
+    assert read_image(out / "test" / "wall_2" / "restored_support.png").shape == (height, width, 3)
     assert not (out / "test" / "wall_0").exists()
 
     # a path frame's restored image: the same reprojection, or the render without sources

@@ -7,7 +7,8 @@ import pytest
 
 from seathru.io.cameras import Frame
 from seathru.nerf.rays import camera_rays_np
-from seathru.nerf.reproject import SourceView, reprojected_detail, restored_with_detail
+from seathru.nerf.reproject import (SUPPORTED, SourceView, reprojected_detail,
+                                    restored_and_support, restored_with_detail)
 
 PLANE_Z = 5.0
 
@@ -125,6 +126,28 @@ def test_pixels_no_source_sees_and_open_water_keep_the_restored_render():
     assert unseen[:, :10].all() and 0 < unseen.mean() < 1
     np.testing.assert_array_equal(result[unseen], restored[unseen])
     np.testing.assert_allclose(result[~unseen], restored[~unseen] + [0.1, 0.2, 0.3], atol=1e-6)
+
+
+def test_the_support_says_how_many_views_back_a_pixel_and_from_how_near():
+    """One view along the same rays backs every pixel it sees (support 1 = SUPPORTED), one
+    30 degrees off barely counts, a second one alongside doubles it; open water and pixels
+    no view sees have none."""
+    view = camera(0.0)
+    depth = plane_range(view)
+    depth[:, :6] = np.inf
+    render = {"restored": np.full((48, 64, 3), 0.4, np.float32), "depth": depth,
+              "opacity": np.ones((48, 64))}
+    same = source_of(camera(0.0, name="same"))
+    aside = source_of(camera(PLANE_Z * np.tan(np.radians(30)), name="aside"))
+    image, support = restored_and_support(view, render, [same])
+    np.testing.assert_array_equal(image, restored_with_detail(view, render, [same]))
+    assert support.dtype == np.float32 and support.shape == depth.shape
+    np.testing.assert_allclose(support[:, 6:], 1.0, atol=1e-4)
+    assert (support[:, :6] == 0).all() and SUPPORTED == 1.0
+    _, off = restored_and_support(view, render, [aside])
+    assert 0 < off.max() < 0.01
+    _, both = restored_and_support(view, render, [same, source_of(camera(0.0, name="twin"))])
+    np.testing.assert_allclose(both[:, 6:], 2.0, atol=2e-4)
 
 
 def test_the_detail_is_blended_in_by_the_views_opacity_and_never_goes_negative():

@@ -56,6 +56,7 @@ TABLE_COLUMNS = (
     "psnr_linear", "ssim_linear", "psnr_srgb", "ssim_srgb", "lpips",
     "restored_psnr_linear", "restored_psnr_linear_covered", "restored_ssim_linear",
     "photo_restored_psnr_linear", "reprojected_restored_psnr_linear",
+    "reprojected_restored_psnr_linear_supported", "supported_share",
     "full_vs_clean_psnr_linear",
     "depth_median_abs_rel", "depth_corr", *CHART_COLUMNS, "track_slope_reduction",
     "photo_track_slope_reduction", "train_time_s", "train_steps",

@@ -34,7 +34,8 @@ TRUTH_COLUMNS = ("restored_psnr_linear", "restored_ssim_linear", "restored_psnr_
                  "full_vs_water_psnr_linear_covered", "covered_share",
                  "photo_restored_psnr_linear", "photo_restored_ssim_linear",
                  "photo_restored_psnr_linear_covered", "reprojected_restored_psnr_linear",
-                 "reprojected_restored_ssim_linear", "reprojected_restored_psnr_linear_covered")
+                 "reprojected_restored_ssim_linear", "reprojected_restored_psnr_linear_covered",
+                 "reprojected_restored_psnr_linear_supported", "supported_share")
 
 
 class ViewMetrics(TypedDict):
@@ -66,6 +67,8 @@ class ViewMetrics(TypedDict):
     reprojected_restored_psnr_linear: NotRequired[float]   # with the photographs' detail
     reprojected_restored_ssim_linear: NotRequired[float]
     reprojected_restored_psnr_linear_covered: NotRequired[float]
+    reprojected_restored_psnr_linear_supported: NotRequired[float]  # the pixels it backs
+    supported_share: NotRequired[float]
 
 
 @dataclass(kw_only=True)

@@ -134,7 +134,8 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
                        gain: np.ndarray, metres_per_unit: float,
                        covered: np.ndarray | None = None,
                        restored_photo: np.ndarray | None = None,
-                       reprojected: np.ndarray | None = None) -> dict[str, float]:
+                       reprojected: np.ndarray | None = None,
+                       supported: np.ndarray | None = None) -> dict[str, float]:
     """The truth columns of ``metrics.csv`` for one held-out view.
 
     Args:
@@ -158,6 +159,10 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
         reprojected: ``(H, W, 3)`` or None: the restored render with the training
             photographs' restored detail reprojected into it (``seathru.nerf.reproject``);
             given, scored alike (``reprojected_restored_psnr_linear``, ...).
+        supported: ``(H, W)`` bool or None: the pixels the training photographs back
+            (``restored_support``); given with ``reprojected``, it is also scored on those
+            alone (``reprojected_restored_psnr_linear_supported``; ``supported_share`` of the
+            scored pixels).
     """
     defined = np.all(np.isfinite(clean), axis=-1) & np.isfinite(truth_depth)
     restored_m = metrics.image_metrics(gain * restored, clean, valid=defined)
@@ -184,6 +189,12 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
         extra[f"{prefix}_ssim_linear"] = scores["ssim_linear"]
         if covered is not None:
             extra[f"{prefix}_psnr_linear_covered"] = covered_psnr(image, clean)
+    if reprojected is not None and supported is not None:
+        backed = defined & np.asarray(supported, dtype=bool)
+        extra["reprojected_restored_psnr_linear_supported"] = metrics.image_metrics(
+            gain * reprojected, clean, valid=backed)["psnr_linear"] if backed.any() \
+            else float("nan")
+        extra["supported_share"] = float(backed.sum() / max(int(defined.sum()), 1))
     return {
         "restored_psnr_linear": restored_m["psnr_linear"],
         "restored_ssim_linear": restored_m["ssim_linear"],

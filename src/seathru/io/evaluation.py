@@ -36,7 +36,7 @@ from seathru.io.atomic import write_json, write_text
 from seathru.io.cameras import CameraSet, read_cameras
 from seathru.io.images import read_image, read_mask
 from seathru.io.jsonfile import json_safe, read_json
-from seathru.io.renders import RESTORED_PHOTO, RESTORED_REPROJECTED
+from seathru.io.renders import RESTORED_PHOTO, RESTORED_REPROJECTED, RESTORED_SUPPORT
 from seathru.io.stored_views import (source_cameras, stored_image_on_frame,
                                      undistort_interpolation)
 from seathru.io.water import WaterReport, read_truth_water
@@ -277,6 +277,13 @@ def _training_coverage(truth_dir: Path, truth_cameras: CameraSet, cameras: Camer
     return coverage
 
 
+def _supported(support: np.ndarray) -> np.ndarray:
+    """The pixels the training photographs back (``seathru.nerf.reproject.SUPPORTED``)."""
+    from seathru.nerf.reproject import SUPPORTED
+
+    return np.nan_to_num(support[..., 0] if support.ndim == 3 else support) >= SUPPORTED
+
+
 def truth_evaluation(truth_dir: Path, renders: Path, cameras: CameraSet, rows: list[dict],
                      water: WaterReport | None) -> TruthSummary:
     """Add the truth columns to ``rows`` (one per held-out view, ``view`` keyed); return the
@@ -316,13 +323,15 @@ def truth_evaluation(truth_dir: Path, renders: Path, cameras: CameraSet, rows: l
             covered = resized_like(on_frame(coverage(view), view), full) > 0.5
         photo = Path(renders) / "test" / view / f"{RESTORED_PHOTO}.tiff"
         reprojected = Path(renders) / "test" / view / f"{RESTORED_REPROJECTED}.tiff"
+        support = Path(renders) / "test" / view / f"{RESTORED_SUPPORT}.tiff"
         row.update(truth_eval.view_truth_metrics(
             full=full, restored=read_render(renders, view, "restored"),
             depth=read_render(renders, view, "depth"), clean=truth("clean", view, full),
             water=truth("water", view, full), truth_depth=truth("depth", view, full),
             gain=gain, metres_per_unit=scale.scale, covered=covered,
             restored_photo=read_image(photo) if photo.is_file() else None,
-            reprojected=read_image(reprojected) if reprojected.is_file() else None))
+            reprojected=read_image(reprojected) if reprojected.is_file() else None,
+            supported=_supported(read_image(support)) if support.is_file() else None))
     fitted = None if water is None else water.normalised.as_dict()
     uncertainty = None if water is None else water.uncertainty
     comparison = truth_eval.compare_water(

@@ -13,6 +13,11 @@ Layout::
     test/<view>/restored_reprojected.{tiff,png}  the restored render with the restored training
                               photographs' detail reprojected into it
                               (``seathru.nerf.reproject``; ``photos.restore: all``)
+    test/<view>/restored_support.{tiff,png}  how much the training photographs back each pixel
+                              of it, float32 (H, W): the sum of the angle weights of the views
+                              that see its surface (from ``reproject.SUPPORTED``, 1: backed;
+                              0: the model's restored render alone); the PNG is grey, white
+                              from twice that
     photos/<view>.{tiff,png}  every camera's photograph restored alike (``photos.restore: all``)
     path/{full,restored,depth}.mp4   camera-path videos ('mp4v'; odd sizes padded by one pixel;
                               restored with the photographs' detail with ``photos.restore: all``)
@@ -57,6 +62,7 @@ RENDER_KEYS = {"full": "rgb", "restored": "restored", "direct": "direct",
 VIDEO_OUTPUTS = ("full", "restored", "depth")
 RESTORED_PHOTO = "restored_photo"
 RESTORED_REPROJECTED = "restored_reprojected"
+RESTORED_SUPPORT = "restored_support"
 PHOTOS_DIR = "photos"
 MAX_EXPOSURE_IMAGES = 24
 _HINT = "re-run the 'render' step"
@@ -267,15 +273,21 @@ def write_reprojected(root: str | os.PathLike, frame, images: Mapping[str, np.nd
                       sources: Sequence[SourceView], downscale: int, scale: float,
                       photos: PhotoRestoration) -> bool:
     """``test/<view>/restored_reprojected.*``: the view's restored render with the training
-    photographs' restored detail reprojected into it (``seathru.nerf.reproject``);
-    not written (False) without ``sources`` or an ``opacity`` render."""
+    photographs' restored detail reprojected into it, and ``restored_support.*``, how much
+    they back each pixel (``seathru.nerf.reproject.restored_and_support``); not written
+    (False) without ``sources`` or an ``opacity`` render."""
     from seathru.eval.display import to_display
+    from seathru.nerf.reproject import SUPPORTED, restored_and_support
 
     if not sources or "opacity" not in images:
         return False
-    restored = restored_view(frame, images, sources, downscale, photos)
+    restored, support = restored_and_support(frame, images, sources, downscale,
+                                             photos.reproject_tolerance, photos.reproject_angle)
     write_float_tiff(render_path(root, frame.name, RESTORED_REPROJECTED), restored)
     write_display(root, frame.name, RESTORED_REPROJECTED, to_display(restored, scale))
+    write_float_tiff(render_path(root, frame.name, RESTORED_SUPPORT), support)
+    grey = np.clip(support / (2.0 * SUPPORTED), 0.0, 1.0)
+    write_display(root, frame.name, RESTORED_SUPPORT, np.repeat(grey[..., None], 3, axis=-1))
     return True
 
 
