@@ -41,7 +41,7 @@ def score_run(run: Path, settings: list[tuple[float, float]], work: Path) -> lis
     from seathru.nerf import reproject
 
     seconds: list[float] = []
-    timed = reproject.restored_with_detail
+    timed = reproject.restored_and_support
 
     def timing(*args, **kwargs):   # the render step calls it once per held-out view
         start = time.perf_counter()
@@ -51,11 +51,11 @@ def score_run(run: Path, settings: list[tuple[float, float]], work: Path) -> lis
 
     photos = [{"restore": "all", "reproject_tolerance": tolerance, "reproject_angle": angle}
               for tolerance, angle in settings]
-    reproject.restored_with_detail = timing
+    reproject.restored_and_support = timing
     try:
         scored = scored_photo_settings(run, photos, work)
     finally:
-        reproject.restored_with_detail = timed
+        reproject.restored_and_support = timed
     label = f"{run.parents[1].name}/{run.name}"   # <clone>/results/<dataset>
     views = [view for per_setting in scored for view in per_setting]
     keys = [setting for setting, per_setting in zip(settings, scored) for _ in per_setting]
