@@ -31,7 +31,8 @@ from seathru.eval.truth import WATER_KEYS
 from seathru.radiometry.colour import linear_to_srgb
 
 STRIP_COLUMNS = (("gt", "ground truth"), ("full", "full render"), ("restored", "restored"),
-                 ("restored_reprojected", "restored, photographs' detail"),
+                 ("restored_reprojected", "restored + photos' detail"),
+                 ("restored_support", "support (white: backed)"),
                  ("restored_photo", "photograph restored"), ("depth", "depth"),
                  ("backscatter", "backscatter"))
 CHANNEL_COLOURS = ("#d62728", "#2ca02c", "#1f77b4")
