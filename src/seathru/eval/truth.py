@@ -170,15 +170,16 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
     fit = metrics.image_metrics(gain * full, water)
     depth_m = metrics.depth_errors(depth * metres_per_unit, truth_depth)
     extra = {}
+
+    def psnr_on(mask: np.ndarray, image: np.ndarray, reference: np.ndarray) -> float:
+        return metrics.image_metrics(gain * image, reference, valid=mask)["psnr_linear"] \
+            if mask.any() else float("nan")
+
     if covered is not None:
         seen = defined & np.asarray(covered, dtype=bool)
 
-        def covered_psnr(image: np.ndarray, reference: np.ndarray) -> float:
-            return metrics.image_metrics(gain * image, reference, valid=seen)["psnr_linear"] \
-                if seen.any() else float("nan")
-
-        extra = {"restored_psnr_linear_covered": covered_psnr(restored, clean),
-                 "full_vs_water_psnr_linear_covered": covered_psnr(full, water),
+        extra = {"restored_psnr_linear_covered": psnr_on(seen, restored, clean),
+                 "full_vs_water_psnr_linear_covered": psnr_on(seen, full, water),
                  "covered_share": float(seen.sum() / max(int(defined.sum()), 1))}
     for prefix, image in (("photo_restored", restored_photo),
                           ("reprojected_restored", reprojected)):
@@ -188,12 +189,10 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
         extra[f"{prefix}_psnr_linear"] = scores["psnr_linear"]
         extra[f"{prefix}_ssim_linear"] = scores["ssim_linear"]
         if covered is not None:
-            extra[f"{prefix}_psnr_linear_covered"] = covered_psnr(image, clean)
+            extra[f"{prefix}_psnr_linear_covered"] = psnr_on(seen, image, clean)
     if reprojected is not None and supported is not None:
         backed = defined & np.asarray(supported, dtype=bool)
-        extra["reprojected_restored_psnr_linear_supported"] = metrics.image_metrics(
-            gain * reprojected, clean, valid=backed)["psnr_linear"] if backed.any() \
-            else float("nan")
+        extra["reprojected_restored_psnr_linear_supported"] = psnr_on(backed, reprojected, clean)
         extra["supported_share"] = float(backed.sum() / max(int(defined.sum()), 1))
     return {
         "restored_psnr_linear": restored_m["psnr_linear"],

@@ -73,11 +73,13 @@ def _folders_below(folder: Path, depth: int | None = None) -> list[Path]:
     return found
 
 
-def image_subfolders(folder: Path, depth: int = 3) -> list[tuple[str, int]]:
-    """The subfolders of ``folder`` that hold image files, at most ``depth`` levels down
-    (hidden folders skipped): ``(relative POSIX path, image count)`` in path order."""
+def image_subfolders(folder: Path, depth: int = 3, videos: bool = False
+                     ) -> list[tuple[str, int]]:
+    """The subfolders of ``folder`` that hold image files (with ``videos``, or videos), at most
+    ``depth`` levels down (hidden folders skipped): ``(relative POSIX path, file count)`` in
+    path order."""
     counts = [(sub.relative_to(folder).as_posix(),
-               sum(1 for f in _visible_files(sub) if detect_kind(f)))
+               sum(1 for f in _visible_files(sub) if detect_kind(f) or (videos and is_video(f))))
               for sub in _folders_below(folder, depth)]
     return sorted((name, count) for name, count in counts if count)
 
@@ -93,9 +95,8 @@ def _only_image_subfolder(folder: Path) -> str | None:
     layout's files (:data:`POSED_LAYOUT_MARKS`)."""
     if any((folder / mark).exists() for mark in POSED_LAYOUT_MARKS):
         return None
-    holding = [sub for sub in _folders_below(folder, 3)
-               if any(detect_kind(f) or is_video(f) for f in _visible_files(sub))]
-    return holding[0].relative_to(folder).as_posix() if len(holding) == 1 else None
+    holding = image_subfolders(folder, videos=True)
+    return holding[0][0] if len(holding) == 1 else None
 
 
 def every_image_file(folder: Path) -> list[tuple[Path, str]]:
