@@ -177,7 +177,6 @@ def view_truth_metrics(*, full: np.ndarray, restored: np.ndarray, depth: np.ndar
 
     if covered is not None:
         seen = defined & np.asarray(covered, dtype=bool)
-
         extra = {"restored_psnr_linear_covered": psnr_on(seen, restored, clean),
                  "full_vs_water_psnr_linear_covered": psnr_on(seen, full, water),
                  "covered_share": float(seen.sum() / max(int(defined.sum()), 1))}
