@@ -74,6 +74,9 @@ def _sheet(tmp_path: Path, rows: list[str], header: str = "dataset\tsource\tpath
          r"train\.medium\.no_such is not a setting of 'seathru train'"),
         (["d1\tsimulated\t\ttrain.max_minutes=soon"], None,
          r"train\.max_minutes: 'soon' is not of type 'number'"),
+        (["d1\tsimulated\t\tsimulate.sigma_attn=0.3 0.12 0.09"], None,
+         r"simulate\.sigma_attn: '0\.3 0\.12 0\.09' is not of type 'array', 'null' \(a list is "
+         r"written in brackets: simulate\.sigma_attn=\[0\.3, 0\.12, 0\.09\]\)"),
         (["d1\tsimulated\t\ttrain.seed=1; train.seed.x=2"], None,
          "train.seed is given a value and also used as a section"),
     ],

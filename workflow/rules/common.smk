@@ -200,6 +200,9 @@ def schema_error_message(error, prefix=()):
     if error.validator == "type" and isinstance(instance, dict) and path:
         return f"{field} is a setting, not a section: give it a value ({field}=...)"
     message = f"{field}: {error.message}" if field else error.message
+    if error.validator == "type" and "array" in _types(schema) and isinstance(instance, str):
+        items = [item for item in re.split(r"[\s,]+", instance.strip()) if item]
+        message += f" (a list is written in brackets: {field}=[{', '.join(items)}])"
     if isinstance(instance, bool) and "enum" in schema:
         message += " (YAML reads off/no/on/yes as booleans: quote the word, e.g. 'off')"
     return message
