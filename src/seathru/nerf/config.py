@@ -190,6 +190,11 @@ class MediumConfig:
                   "parameter space)")
     refit_steps: int = setting(300, help="most L-BFGS iterations of a water refit")
     auto_select_at: float = setting(0.8, help="auto: progress at which the model is chosen")
+    auto_select_at_no_image_evidence: float = setting(
+        0.4, help="auto: the same where the photographs show no open water and no colour "
+                  "change with range along the COLMAP tracks (air, clear water): chosen late, "
+                  "no water has too little of the budget left to recover from the switch "
+                  "(fern 19.97 dB held-out at 0.8 against 21.30 dB without water throughout)")
     auto_trial_share: float = setting(0.05, help="auto: share of the run each trial trains")
     auto_margin_db: float = setting(0.5, help="auto: with evidence of water in the images, no "
                                               "water must beat the water by this many dB on "
@@ -199,9 +204,10 @@ class MediumConfig:
                   "by this many dB (a water model also fits what a half-trained scene gets "
                   "wrong: fern, in air, gained 1.7 dB from it)")
     auto_backscatter_evidence: float = setting(
-        0.2, help="auto: a fitted water whose backscatter makes up this share of the image is "
-                  "evidence of water (a scattering medium; 62% on the survey demo, 8% for the "
-                  "water model fern, in air, trained)")
+        0.3, help="auto: a fitted water whose backscatter makes up this share of the image is "
+                  "evidence of water (a scattering medium; 61-67% on the simulated surveys and "
+                  "the default-water orbit, 15% on the clearest oceanic orbit, whose tracks "
+                  "show its water; 20% for the water model fern, in air, trained)")
     auto_surface_fading: float = setting(
         0.25, help="auto: a water fit on the model's own surfaces (independent of the trained "
                    "water) whose attenuation fades the colour by this share over the median "

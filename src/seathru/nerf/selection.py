@@ -65,13 +65,17 @@ class ModelSelection:
                 self._restore(start)
             previous = name
             setup()
-            progress = self._progress()
-            for _ in range(trial):
-                self._set_lr(progress)
-                if self._optimise_once() is not None:
-                    self.step += 1
+            self._train_trial(trial)
             results[name] = self._probe_psnr()
         return results, ends
+
+    def _train_trial(self, trial: int) -> None:
+        """``trial`` optimisation steps at the learning rate of the current progress."""
+        progress = self._progress()
+        for _ in range(trial):
+            self._set_lr(progress)
+            if self._optimise_once() is not None:
+                self.step += 1
 
     def select_view_dependence(self) -> dict:
         """``field.view_dependent_colour=auto``: object colour with or without the view
@@ -111,6 +115,36 @@ class ModelSelection:
                            f"{results['on']:.2f} dB with it, {results['off']:.2f} dB without; "
                            f"{verdict}")}
 
+    def image_evidence_of_water(self) -> list[str]:
+        """What the photographs themselves show of water, known before training: open water
+        (smooth regions reaching the top of the frame) and the input colour changing with range
+        along the COLMAP tracks; one sentence each."""
+        c = self.config
+        image_water = float(self.model.scene.get("open_water_image_share", 0.0))
+        tracks = self.model.scene.get("track_colour_change") or {}
+        fading = [abs(t) > c.medium.auto_track_t and abs(change) > c.medium.auto_track_change
+                  for t, change in zip(tracks.get("t", []),
+                                       tracks.get("change_over_median_range", []))]
+        return [text for present, text in (
+            (image_water > c.medium.auto_open_water_share,
+             f"{100 * image_water:.1f}% of the training pixels are open water (smooth regions "
+             "reaching the top of the frame)"),
+            (any(fading),
+             "along {} COLMAP tracks the input colour changes with range by {} over the median "
+             "range (log colour, R G B)".format(tracks.get("tracks"), ", ".join(
+                 f"{100 * v:+.0f}%" for v in tracks.get("change_over_median_range", [])))),
+        ) if present]
+
+    def medium_decision_progress(self) -> float:
+        """When ``medium.mode=auto`` decides: ``auto_select_at``, or
+        ``auto_select_at_no_image_evidence`` where the photographs show no water
+        (:meth:`image_evidence_of_water`) and no water is the likelier answer, which then
+        keeps more of the budget to recover from the switch (:meth:`select_medium`)."""
+        c = self.config.medium
+        if self.image_evidence_of_water():
+            return c.auto_select_at
+        return min(c.auto_select_at, c.auto_select_at_no_image_evidence)
+
     def select_medium(self) -> dict:
         """``medium.mode=auto``: no water (plain NeRF) or the water the run started with, the
         simplest that the training views support.
@@ -132,7 +166,9 @@ class ModelSelection:
         shows water, as it costs seconds of the budget), or a fitted water whose
         backscatter is a large share of the image (``auto_backscatter_evidence``). With such
         evidence the water stays unless no water is better by ``auto_margin_db``; without it,
-        the water must be better by ``auto_margin_no_evidence_db``. The paper's fully
+        the water must be better by ``auto_margin_no_evidence_db``, also after no water has
+        trained a second trial (its object colours were learnt under the water, and the switch
+        leaves each off by the attenuation it was trained with). The paper's fully
         view-dependent water is never picked automatically: it can also absorb errors of a
         half-trained scene; ask for it with ``medium.mode=view``.
         """
@@ -166,17 +202,7 @@ class ModelSelection:
             if bool(walled.any()) and visible(observed[walled]) else 0.0
         image_water = float(self.model.scene.get("open_water_image_share", 0.0))
         tracks = self.model.scene.get("track_colour_change") or {}
-        fading = [abs(t) > c.medium.auto_track_t and abs(change) > c.medium.auto_track_change
-                  for t, change in zip(tracks.get("t", []),
-                                       tracks.get("change_over_median_range", []))]
-        evidence = [text for present, text in (
-            (image_water > c.medium.auto_open_water_share,
-             f"{100 * image_water:.1f}% of the training pixels are open water (smooth regions "
-             "reaching the top of the frame)"),
-            (any(fading),
-             "along {} COLMAP tracks the input colour changes with range by {} over the median "
-             "range (log colour, R G B)".format(tracks.get("tracks"), ", ".join(
-                 f"{100 * v:+.0f}%" for v in tracks.get("change_over_median_range", [])))),
+        evidence = [*self.image_evidence_of_water(), *(text for present, text in (
             (open_water > c.medium.auto_open_water_share,
              f"{100 * open_water:.1f}% of the rays meet no surface and show the veiling light "
              "(open water)"),
@@ -185,7 +211,7 @@ class ModelSelection:
             (backscatter_share >= c.medium.auto_backscatter_evidence,
              f"the fitted water's backscatter makes up {100 * backscatter_share:.0f}% of the "
              "image"),
-        ) if present]
+        ) if present)]
         # The surface fit costs seconds of the budget (12 s of a 90-s demo run) and can only
         # add evidence: it is made when nothing else shows water, where it decides.
         surface_attenuation, determined = None, None
@@ -228,12 +254,24 @@ class ModelSelection:
             gain = results[water_mode] - results["off"]
             margin = c.medium.auto_margin_db if evidence \
                 else c.medium.auto_margin_no_evidence_db
+            recovered = None
+            if not evidence and gain > margin:
+                # one trial may not undo the switch (docs/water.md, "No water after the switch")
+                ends[water_mode] = self._state()
+                self._restore(ends["off"])
+                self._train_trial(trial)
+                recovered = self._probe_psnr()
+                ends["off"] = self._state()
+                gain = results[water_mode] - max(results["off"], recovered)
             chosen = water_mode if (gain > -margin if evidence else gain > margin) else "off"
             if chosen == "off":
                 self._restore(ends["off"])
                 self.model.medium.set_mode("off")
+            elif recovered is not None:
+                self._restore(ends[water_mode])
             stats.update({"trial_steps": trial, "validation_psnr_off": results["off"],
-                          "validation_psnr_water": results[water_mode]})
+                          "validation_psnr_water": results[water_mode],
+                          "validation_psnr_off_second_trial": recovered})
             if evidence:
                 verdict = (f"kept: the images show water ({'; '.join(evidence)}) and no water "
                            f"is not better by more than {margin:g} dB ({gain:+.2f} dB for the "
@@ -246,10 +284,12 @@ class ModelSelection:
                            f"not better by more than {margin:g} dB ({gain:+.2f} dB) and the "
                            "images show no open water, far wall or fading with range: no "
                            "water, plain NeRF")
+            second = "" if recovered is None else (
+                f" ({recovered:.2f} dB after {trial} more steps to adapt to the switch)")
             reason = (f"trained {trial} steps with and without water from step "
                       f"{from_step}: on {len(self.probe)} held-out training rays the water "
                       f"model ({water_mode}) reaches {results[water_mode]:.2f} dB, no water "
-                      f"{results['off']:.2f} dB; the water is {verdict} (it made up "
+                      f"{results['off']:.2f} dB{second}; the water is {verdict} (it made up "
                       f"{100 * backscatter_share:.1f}% of the image as backscatter, attenuation "
                       f"{100 * attenuation:.1f}% over the median depth {depth:.3g})")
         self.model.medium.to(self.device)

@@ -359,6 +359,7 @@ class Trainer(ModelSelection, WaterRefitting):
         self._take_snapshot()
         last_test = None
         next_quality = c.quality_snapshot_first_s
+        self._medium_decision_at = self.medium_decision_progress()
         while 0 < next_quality <= self.elapsed_s:
             next_quality *= 2.0
         while self.step < c.step_limit:
@@ -385,7 +386,7 @@ class Trainer(ModelSelection, WaterRefitting):
                 self.view_selection = self.select_view_dependence()
                 self._say(f"step {self.step}: view-dependent colour "
                           f"{self.view_selection['chosen']}: {self.view_selection['reason']}")
-            if self.selection is None and progress >= c.medium.auto_select_at:
+            if self.selection is None and progress >= self._medium_decision_at:
                 self.selection = self.select_medium()
                 self._say(f"step {self.step}: medium '{self.selection['chosen']}': "
                           f"{self.selection['reason']}")
