@@ -124,6 +124,7 @@ class Trainer(ModelSelection, WaterRefitting):
         if self.config.medium.mode != "auto":
             self.selection = {"requested": self.config.medium.mode, "chosen": self.config.medium.mode,
                               "reason": "set explicitly (medium.mode)"}
+        self._medium_decision_at = self.medium_decision_progress()
         requested = self.config.field.view_dependent_colour
         self.view_selection: dict | None = None
         if not hasattr(model.field, "decoder") or not hasattr(model.field.decoder,
@@ -359,7 +360,6 @@ class Trainer(ModelSelection, WaterRefitting):
         self._take_snapshot()
         last_test = None
         next_quality = c.quality_snapshot_first_s
-        self._medium_decision_at = self.medium_decision_progress()
         while 0 < next_quality <= self.elapsed_s:
             next_quality *= 2.0
         while self.step < c.step_limit:
