@@ -92,7 +92,6 @@ def test_the_surface_fit_is_spared_when_other_evidence_shows_water(monkeypatch):
             assert calls == [1] and stats["attenuation_determined"] is True
 
 
-
 @pytest.mark.parametrize("recovers, chosen", [(True, "off"), (False, "global")])
 def test_without_evidence_no_water_gets_a_second_trial_to_adapt_to_the_switch(recovers, chosen,
                                                                              monkeypatch):
@@ -120,13 +119,20 @@ def test_without_evidence_no_water_gets_a_second_trial_to_adapt_to_the_switch(re
     assert trainer.step == start + (2 if recovers else 1) * trial
 
 
-def test_with_evidence_or_a_close_race_there_is_no_second_trial(monkeypatch):
-    trainer = _evidence_trainer(medium="global")
-    monkeypatch.setattr(trainer, "_probe_psnr",
-                        lambda: 21.0 if trainer.model.medium.mode != "off" else 20.0)
+@pytest.mark.parametrize("gain_db, with_evidence, chosen", [(1.0, False, "off"),
+                                                         (3.5, True, "global")])
+def test_with_evidence_or_a_close_race_there_is_no_second_trial(gain_db, with_evidence, chosen,
+                                                                monkeypatch):
+    change = {"tracks": 500, "t": [-12.0, 1.0, 0.5],
+              "change_over_median_range": [-0.4, 0.02, 0.01]} if with_evidence else None
+    trainer = _evidence_trainer(change, medium="global")
+    trial = trainer._trial_steps(trainer.config.medium.auto_trial_share)
+    monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0 + (
+        gain_db if trainer.model.medium.mode != "off" else 0.0))
     selection = trainer.select_medium()
-    assert selection["chosen"] == "off"
+    assert selection["chosen"] == chosen
     assert selection["statistics"]["validation_psnr_off_second_trial"] is None
+    assert trainer.step == trial
 
 
 def test_where_the_photographs_show_no_water_the_medium_is_chosen_earlier():
