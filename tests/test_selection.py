@@ -137,7 +137,7 @@ def test_with_evidence_or_a_close_race_there_is_no_second_trial(gain_db, with_ev
 
 def test_where_the_photographs_show_no_water_the_medium_is_chosen_earlier():
     # chosen at 0.8 of the run, no water kept too little of the budget to recover from the
-    # switch (fern: 19.97 dB held-out against 21.30 dB trained without water throughout)
+    # switch (benchmarks/results/medium_decision_fern.md)
     fading = {"tracks": 500, "t": [-12.0, 1.0, 0.5],
               "change_over_median_range": [-0.4, 0.02, 0.01]}
     decided = {}
