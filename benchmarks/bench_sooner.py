@@ -79,7 +79,10 @@ def water_errors(summary) -> str:
     water = summary.truth.water if summary.truth else None
     if water is None or not water.fitted:
         return "—"
-    return "; ".join(f"{key} " + ", ".join(f"{100 * (fitted / true - 1):+.0f}" for fitted, true
+    def error(fitted: float, true: float) -> str:   # clear water: the truth is 0
+        return f"{100 * (fitted / true - 1):+.0f}" if true else f"{fitted:.2g} (truth 0)"
+
+    return "; ".join(f"{key} " + ", ".join(error(fitted, true) for fitted, true
                                            in zip(water.fitted[key], water.truth[key]))
                      for key in ("sigma_attn", "sigma_bs", "c_med"))
 
