@@ -194,8 +194,8 @@ class MediumConfig:
         0.4, help="auto: the same where the photographs show no open water and no colour "
                   "change with range along the COLMAP tracks (air, clear water): chosen late, "
                   "no water has too little of the budget left to recover from the switch "
-                  "(fern: the train step's held-out PSNR 19.97 dB at 0.8, 20.54 at 0.4, 21.30 without "
-                  "water throughout; benchmarks/results/medium_decision_fern.md)")
+                  "(fern: the train step's held-out PSNR 19.97 dB at 0.8, 20.54 at 0.4, "
+                  "21.30 without water throughout; benchmarks/results/medium_decision_fern.md)")
     auto_trial_share: float = setting(0.05, help="auto: share of the run each trial trains")
     auto_margin_db: float = setting(0.5, help="auto: with evidence of water in the images, no "
                                               "water must beat the water by this many dB on "
