@@ -242,7 +242,7 @@ def test_invalid_raw_reasons():
     assert "constant" in linearise.invalid_image_reason(np.zeros((4, 4, 3)))
 
 
-def _mosaic_dng(path: Path, scene: np.ndarray) -> None:
+def _mosaic_dng(path: Path, scene: np.ndarray, focal_length_35mm: int | None = None) -> None:
     """``scene`` (H, W, 3) in [0, 1] sampled on an RGGB mosaic, noise-free, as a DNG."""
     from seathru.io.dng import write_dng
 
@@ -251,7 +251,29 @@ def _mosaic_dng(path: Path, scene: np.ndarray) -> None:
     channel[0::2, 0::2], channel[1::2, 1::2] = 0, 2
     mosaic = np.take_along_axis(scene, channel[..., None], -1)[..., 0]
     write_dng(path, (1024 + mosaic * (16383 - 1024)).round().astype(np.uint16),
-              black_level=1024, white_level=16383, exposure_time_s=0.01, iso=100, f_number=4.0)
+              black_level=1024, white_level=16383, exposure_time_s=0.01, iso=100, f_number=4.0,
+              focal_length_35mm=focal_length_35mm)
+
+
+def test_the_exif_focal_length_reaches_the_manifest_where_the_poses_step_finds_it(tmp_path):
+    from seathru.geometry.intrinsics import focal_from_metadata
+
+    rng = np.random.default_rng(1)
+    for folder, focal in (("with", 28), ("without", None)):
+        for i in range(3):
+            _mosaic_dng(tmp_path / folder / f"im{i}.dng", rng.uniform(0.1, 0.9, (24, 32, 3)),
+                        focal)
+        manifest = run_ingest("--input", tmp_path / folder, "--out", tmp_path / f"{folder}_out")
+        recorded = [image.get("focal_length_35mm") for image in manifest["images"]]
+        width, height = manifest["images"][0]["matching_size"]
+        focal_px, source = focal_from_metadata(manifest, width, height)
+        if focal is None:
+            assert recorded == [None] * 3 and focal_px is None
+        else:
+            assert recorded == [28.0] * 3 and "35 mm" in source
+            # by the diagonal: a 28 mm equivalent spans 75 degrees across the diagonal
+            assert focal_px == pytest.approx(28.0 / np.hypot(36.0, 24.0) * np.hypot(width,
+                                                                                     height))
 
 
 def test_linear_demosaic_keeps_each_channel_to_its_own_samples_and_ahd_does_not(tmp_path):

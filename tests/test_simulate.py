@@ -16,6 +16,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from seathru.cli import main as cli_main
+from seathru.geometry.intrinsics import focal_from_metadata
 from seathru.sim import dive as dive_mod
 from seathru.sim import reef
 from seathru.sim import scene as scene_mod
@@ -23,6 +24,7 @@ from seathru.sim import sensor as sensor_mod
 from seathru.sim.water import PRESETS, WaterParams, WaterPreset, water_image, water_params
 from seathru.io.cameras import read_cameras
 from seathru.io.dng import decode_linear, read_dng_metadata
+from seathru.io.raw import read_exif
 from seathru.steps.simulate import Settings, simulate
 
 VIEWS, WIDTH, HEIGHT = 4, 96, 72
@@ -475,6 +477,13 @@ def test_dng_round_trip_through_rawpy(dive):
         exposure = exif["Image ExposureTime"].values[0]
         assert float(exposure.num) / float(exposure.den) == pytest.approx(shot["exposure_time_s"])
         assert int(str(exif["Image ISOSpeedRatings"])) == shot["iso"]
+        # the 35 mm equivalent focal length a camera records: read back, the true focal length
+        # within its rounding to whole millimetres
+        frame = read_cameras(dive / "truth" / "cameras.json").frames[NAMES.index(name)]
+        lens, _ = read_exif(path)
+        focal_px, _ = focal_from_metadata({"focal_length_35mm": lens.focal_length_35mm},
+                                          frame.width, frame.height)
+        assert focal_px == pytest.approx(frame.fx, rel=0.02)
 
         with rawpy.imread(str(path)) as raw:
             mosaic = raw.raw_image_visible.astype(np.float64)

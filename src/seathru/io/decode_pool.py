@@ -126,7 +126,9 @@ def decode_one(task: DecodeTask) -> Decoded:
     result.samples = linearise.sample_pixels(image, task.sample_pixels)
     exif = decoded.exposure
     result.exposure = {"exposure_time": exif.exposure_time, "iso": exif.iso,
-                       "f_number": exif.f_number, "source": dict(exif.source)}
+                       "f_number": exif.f_number, "source": dict(exif.source),
+                       "focal_length_mm": exif.focal_length_mm,
+                       "focal_length_35mm": exif.focal_length_35mm}
     result.camera_wb = decoded.camera_wb
     result.colour_matrix = decoded.colour_matrix
     result.metadata = decoded.metadata

@@ -5,8 +5,8 @@ with the DNG tags set explicitly: DNGVersion 1.4, CFARepeatPatternDim 2x2, CFAPa
 CFAPlaneColor, BlackLevel, WhiteLevel, ColorMatrix1 (XYZ D65 -> camera; the camera space is
 linear sRGB, so LibRaw derives an identity camera-to-sRGB matrix), CalibrationIlluminant1 D65,
 AsShotNeutral (1, 1, 1). tifffile cannot write an EXIF sub-IFD, so ExposureTime (33434),
-FNumber (33437) and ISOSpeedRatings (34855) sit in the main IFD, where both LibRaw and exifread
-find them.
+FNumber (33437), ISOSpeedRatings (34855) and FocalLengthIn35mmFilm (41989) sit in the main IFD,
+where both LibRaw and exifread find them.
 
 Read back with :func:`read_dng_metadata` (tags, via tifffile) and :func:`decode_linear` (rawpy,
 linear and unscaled: the result is ``(raw - black) / (white - black)`` after demosaicing).
@@ -39,8 +39,10 @@ def _rational(value: float, max_denominator: int = 1_000_000) -> tuple[int, int]
 
 def write_dng(path: str | os.PathLike, raw: np.ndarray, *, black_level: int, white_level: int,
               exposure_time_s: float, iso: int, f_number: float, cfa_pattern: str = "RGGB",
-              make: str = "SeaThru", model: str = "Simulated dive camera") -> None:
-    """Write the (H, W) ``uint16`` mosaic ``raw`` as a DNG, atomically."""
+              make: str = "SeaThru", model: str = "Simulated dive camera",
+              focal_length_35mm: int | None = None) -> None:
+    """Write the (H, W) ``uint16`` mosaic ``raw`` as a DNG, atomically (``focal_length_35mm``:
+    the EXIF 35 mm equivalent focal length, whole millimetres, as cameras record it)."""
     raw = np.ascontiguousarray(raw)
     if raw.ndim != 2 or raw.dtype != np.uint16:
         raise ValueError(f"raw must be a 2-D uint16 mosaic, got {raw.dtype} {raw.shape}")
@@ -70,6 +72,8 @@ def write_dng(path: str | os.PathLike, raw: np.ndarray, *, black_level: int, whi
         (272, "s", 0, model, True),                               # Model
         (274, "H", 1, 1, True),                                   # Orientation: top-left
     ]
+    if focal_length_35mm is not None:
+        extratags.append((41989, "H", 1, int(focal_length_35mm), True))  # FocalLengthIn35mmFilm
     with atomic_path(path) as tmp:
         tifffile.imwrite(tmp, raw, photometric=32803, extratags=extratags, subfiletype=0,
                          metadata=None, software="seathru simulate")
@@ -103,6 +107,7 @@ def read_dng_metadata(path: str | os.PathLike) -> dict:
         "exposure_time_s": _fraction(tags[33434]) if 33434 in tags else None,
         "f_number": _fraction(tags[33437]) if 33437 in tags else None,
         "iso": int(tags[34855]) if 34855 in tags else None,
+        "focal_length_35mm": int(tags[41989]) if 41989 in tags else None,
     }
 
 

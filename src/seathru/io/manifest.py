@@ -49,6 +49,10 @@ class DownscaledImage(TypedDict):
 
 class _ManifestImageOptional(TypedDict, total=False):
     video_frame: VideoFrameRecord  # a video's frame (source is the video); absent otherwise
+    # EXIF FocalLength and FocalLengthIn35mmFilm where the file records them (the poses step
+    # starts COLMAP's focal length from the 35 mm equivalent: seathru.geometry.intrinsics)
+    focal_length_mm: float
+    focal_length_35mm: float
 
 
 class ManifestImage(_ManifestImageOptional):
@@ -224,6 +228,9 @@ def build_manifest(settings: Any, *, folder: Path, given: Path, subdir: str | No
             "decoder": d.metadata,
             "warnings": d.warnings,
         })
+        for key in ("focal_length_mm", "focal_length_35mm"):
+            if d.exposure.get(key) is not None:
+                images[-1][key] = float(d.exposure[key])
         if video is not None and d.name in video.frames:
             frame = video.frames[d.name]
             images[-1].update(source=frame["video"], source_path=video.sources[d.name],

@@ -70,12 +70,17 @@ class DecodeError(Exception):
 
 @dataclass
 class ExifExposure:
-    """Exposure metadata; None = not recorded. ``orientation`` is the EXIF value 1-8."""
+    """Exposure and lens metadata; None = not recorded. ``orientation`` is the EXIF value 1-8;
+    ``focal_length_mm``, ``focal_length_35mm``: the lens's focal length and its 35 mm
+    equivalent (EXIF FocalLength, FocalLengthIn35mmFilm; the poses step starts COLMAP's focal
+    length from the latter)."""
 
     exposure_time: float | None = None
     iso: float | None = None
     f_number: float | None = None
     orientation: int | None = None
+    focal_length_mm: float | None = None
+    focal_length_35mm: float | None = None
     source: dict[str, str] = field(default_factory=dict)
 
 
@@ -106,6 +111,10 @@ _EXIF_KEYS = {
     "f_number": ("EXIF FNumber", "Image FNumber"),
     "iso": ("EXIF ISOSpeedRatings", "Image ISOSpeedRatings", "EXIF PhotographicSensitivity",
             "EXIF RecommendedExposureIndex", "EXIF ISOSpeed"),
+}
+_EXIF_LENS_KEYS = {
+    "focal_length_mm": ("EXIF FocalLength", "Image FocalLength"),
+    "focal_length_35mm": ("EXIF FocalLengthIn35mmFilm", "Image FocalLengthIn35mmFilm"),
 }
 
 
@@ -145,6 +154,10 @@ def read_exif(path: str | Path) -> tuple[ExifExposure, set[str]]:
     if "Image Orientation" in tags:
         orientation = _tag_number(tags["Image Orientation"])
         exposure.orientation = int(orientation) if orientation else None
+    for name, keys in _EXIF_LENS_KEYS.items():   # 0 = not recorded, as for the exposure
+        value = next((v for v in map(_tag_number, (tags[k] for k in keys if k in tags))
+                      if v is not None), None)
+        setattr(exposure, name, value)
     return exposure, present
 
 

@@ -26,6 +26,7 @@ then uses as it uses COLMAP's points beside a poses step's cameras (the water be
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -34,6 +35,7 @@ import numpy as np
 from seathru.errors import PipelineError
 from seathru.io.atomic import write_json, write_text
 from seathru.io.cameras import CameraSet, Frame, write_cameras
+from seathru.geometry.intrinsics import FULL_FRAME_DIAGONAL_MM
 from seathru.io.dng import write_dng
 from seathru.io.images import read_image, write_8bit, write_float_tiff
 from seathru.sim.dive import DivePlan, DiveSpec, SimulatedView
@@ -88,13 +90,24 @@ def truth_frame(name: str, camera: Pinhole, c2w: np.ndarray, range_m: np.ndarray
                  split=split)
 
 
-def write_view(root: Path, name: str, view: SimulatedView, sensor: SensorConfig) -> None:
-    """The view's raw DNG, camera JPEG and truth images (clean, water, depth) under ``root``."""
+def focal_length_35mm(camera) -> int:
+    """The 35 mm equivalent focal length a camera would record in EXIF for ``camera`` (``fx``,
+    ``width``, ``height``): by the image diagonal, as ``seathru.geometry.intrinsics`` reads it
+    back, in whole millimetres."""
+    return round(camera.fx * FULL_FRAME_DIAGONAL_MM / math.hypot(camera.width, camera.height))
+
+
+def write_view(root: Path, name: str, view: SimulatedView, sensor: SensorConfig,
+               camera=None) -> None:
+    """The view's raw DNG, camera JPEG and truth images (clean, water, depth) under ``root``;
+    with ``camera`` (``seathru.sim.dive``'s plan camera) the DNG records its 35 mm equivalent
+    focal length, as a camera's EXIF does."""
     root = Path(root)
     exposure = view.exposure
     write_dng(root / "raw" / f"{name}.dng", view.raw, black_level=sensor.black_level,
               white_level=sensor.white_level, exposure_time_s=exposure.exposure_time_s,
-              iso=exposure.iso, f_number=exposure.f_number, cfa_pattern=sensor.cfa_pattern)
+              iso=exposure.iso, f_number=exposure.f_number, cfa_pattern=sensor.cfa_pattern,
+              focal_length_35mm=None if camera is None else focal_length_35mm(camera))
     write_8bit(root / "jpeg" / f"{name}.jpg", view.jpeg, JPEG_QUALITY)
     for kind, image in zip(TRUTH_KINDS, (view.clean, view.water, view.range_m)):
         write_float_tiff(root / "truth" / kind / f"{name}.tiff", image)
@@ -188,7 +201,8 @@ electron at ISO 100, proportional to ISO) and Gaussian read noise
 per image by up to +-{config.exposure_jitter_ev} EV around {config.nominal_exposure_s:.6f} s;
 ISO {config.iso}, f/{config.f_number}. A raw decoder without white balance or colour
 conversion returns `(raw - black) / (white - black) ~= clip(S / (white - black), 0, 1)`.
-ExposureTime, ISOSpeedRatings and FNumber are in the DNG's main IFD.
+ExposureTime, ISOSpeedRatings, FNumber and FocalLengthIn35mmFilm (by the image diagonal, whole
+millimetres, as cameras record it) are in the DNG's main IFD.
 
 The JPEG is the bilinearly demosaiced raw, normalised the same way, times one gain for
 the whole set (truth/sensor.json, `jpeg`), clipped and sRGB encoded, with no white

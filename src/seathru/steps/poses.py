@@ -82,8 +82,8 @@ class Settings:
     clahe: bool = setting(True, help="local contrast equalisation (CLAHE) of the matching copies")
     clahe_clip: float = setting(2.0, help="CLAHE clip limit")
     clahe_tiles: int = setting(8, help="CLAHE tiles per side")
-    focal_px: float | None = setting(
-        None, help="known focal length in pixels of the matching images")
+    focal_px: float | None = setting(None, help="known focal length in pixels of the matching "
+                                     "images (unset: the photographs' EXIF 35 mm equivalent)")
     focal_mm: float | None = setting(None, help="known focal length in mm (with sensor_width_mm)")
     sensor_width_mm: float | None = setting(None, help="sensor width in mm")
     refine_focal: bool = setting(

@@ -108,7 +108,7 @@ def simulate(out: str | Path, cfg: Settings) -> dict:
     open_water_pixels = 0
     with atomic_dir(out) as tmp:
         for i, (name, view) in enumerate(zip(names, dive.render_views(spec, plan, cfg.workers))):
-            truth.write_view(tmp, name, view, spec.sensor)
+            truth.write_view(tmp, name, view, spec.sensor, plan.camera)
             frames.append(truth.truth_frame(name, plan.camera, view.c2w, view.range_m,
                                             splits[name]))
             open_water_pixels += int(np.count_nonzero(~np.isfinite(view.range_m)))
