@@ -10,7 +10,7 @@ from seathru.geometry.poses import umeyama
 from seathru.geometry.quality import (QualityGate, SfmAttempt, SfmRun, SfmSettings,
                                       confirmed_run, failure_message, independent,
                                       plan_attempts, pose_agreement, reprojection_scale,
-                                      unconfirmed_message, unconfirmed_run)
+                                      unconfirmed_run)
 
 
 def attempt(registered=10, total=10, error=0.5, passed=None, gate=QualityGate()) -> SfmAttempt:
@@ -122,49 +122,6 @@ def test_unconfirmed_keeps_the_lowest_error_candidate_and_marks_it():
     failed = _runs(("sequential", "incremental", False, 3.0), ("sequential", "global", False, 2.0))
     failed[0].attempt.registered = 9
     assert unconfirmed_run(failed, "sequential", cross_check=True) is failed[1]  # more images
-
-
-def _wide_angle_runs() -> tuple[list[SfmRun], dict]:
-    """A simulated 95-degree survey (session 36): the two incremental models nearly agree, the
-    global one, with the lowest reprojection error, is far from both."""
-    runs = _runs(("sequential", "incremental", True, 0.543), ("sequential", "global", True, 0.429),
-                 ("exhaustive", "incremental", True, 0.551), ("exhaustive", "global", False, None))
-    comparisons = {
-        (0, 1): {"common_images": 24, "max_centre_deviation": 0.3325,
-                 "max_rotation_deviation_deg": 85.71},
-        (0, 2): {"common_images": 24, "max_centre_deviation": 0.0103,
-                 "max_rotation_deviation_deg": 2.38},
-        (1, 2): {"common_images": 24, "max_centre_deviation": 0.4891,
-                 "max_rotation_deviation_deg": 87.27}}
-    for (i, j), agreement in comparisons.items():
-        runs[j].attempt.comparisons.append({"with_attempt": i + 1, **agreement})
-    return runs, comparisons
-
-
-def test_unconfirmed_keeps_the_candidate_nearest_to_an_independent_model():
-    runs, comparisons = _wide_angle_runs()
-    kept = unconfirmed_run(runs, "sequential", True, comparisons, QualityGate())
-    assert kept is runs[0], "two models that nearly agree outvote the one far from both"
-    assert "attempt 3" in kept.attempt.note and "2.4x the limits" in kept.attempt.note
-    assert not kept.attempt.passed
-    # with nothing compared, the lowest reprojection error decides as before
-    runs, _ = _wide_angle_runs()
-    assert unconfirmed_run(runs, "sequential", True, {}, QualityGate()) is runs[1]
-
-
-def test_unconfirmed_message_names_the_limits_that_would_confirm_a_near_agreement():
-    runs, comparisons = _wide_angle_runs()
-    kept = unconfirmed_run(runs, "sequential", True, comparisons, QualityGate())
-    attempts = [run.attempt for run in runs]
-    for attempt_ in attempts:
-        attempt_.settings = {"matcher": "sequential", "mapper": "incremental", "seed": 0}
-    message = unconfirmed_message(attempts, kept.attempt, QualityGate())
-    assert "attempts 1 and 3 nearly agree" in message
-    assert "poses.max_disagreement=0.02" in message
-    assert "poses.max_rotation_disagreement_deg=3 " in message
-    far = {"common_images": 24, "max_centre_deviation": 0.2, "max_rotation_deviation_deg": 30.0}
-    runs[2].attempt.comparisons[0].update(far)
-    assert "nearly agree" not in unconfirmed_message(attempts, kept.attempt, QualityGate())
 
 
 def test_failure_message_lists_attempts_and_advice():

@@ -241,50 +241,17 @@ def confirmed_run(runs: list[SfmRun], comparisons: dict[tuple[int, int], dict | 
     return None
 
 
-def closest_agreement(runs: list[SfmRun], candidate: SfmRun,
-                      comparisons: dict[tuple[int, int], dict | None], gate: QualityGate
-                      ) -> tuple[float, int | None]:
-    """How near ``candidate`` came to being confirmed: the smallest, over the independent
-    gate-passing runs it was compared with, of its larger disagreement in units of the gate's
-    limits (1 or less: they agree), and that run's index; ``(inf, None)`` without one."""
-    index = runs.index(candidate)
-    best = (np.inf, None)
-    for (i, j), agreement in comparisons.items():
-        if index not in (i, j) or agreement is None:
-            continue
-        other = j if i == index else i
-        if not runs[other].attempt.passed:
-            continue
-        distance = max(agreement["max_centre_deviation"] / gate.max_disagreement,
-                       agreement["max_rotation_deviation_deg"]
-                       / gate.max_rotation_disagreement_deg)
-        best = min(best, (distance, other), key=lambda item: item[0])
-    return best
-
-
-def unconfirmed_run(runs: list[SfmRun], matcher: str, cross_check: bool,
-                    comparisons: dict[tuple[int, int], dict | None] | None = None,
-                    gate: QualityGate | None = None) -> SfmRun:
-    """The run to keep when none is confirmed (marked as failing the gate when a cross-check
-    was asked for): the candidate that came nearest to agreeing with an independent model
-    (:func:`closest_agreement`; two attempts that nearly agree outvote one far from both,
-    whatever its reprojection error), else the one with the lowest mean reprojection error;
-    without candidates the best run."""
+def unconfirmed_run(runs: list[SfmRun], matcher: str, cross_check: bool) -> SfmRun:
+    """The run to keep when none is confirmed: the candidate with the lowest mean reprojection
+    error (marked as failing the gate when a cross-check was asked for), else the best run."""
     candidates = _candidates(runs, matcher)
     if not candidates:
         return max(runs, key=lambda run: run.attempt.sort_key())
-    nearest = {id(run): closest_agreement(runs, run, comparisons or {}, gate or QualityGate())
-               for run in candidates}
-    best = min(candidates, key=lambda run: (nearest[id(run)][0],
-                                            run.attempt.mean_reprojection_px))
+    best = min(candidates, key=lambda run: run.attempt.mean_reprojection_px)
     if cross_check:
-        distance, witness = nearest[id(best)]
         best.attempt.passed = False
-        best.attempt.note = (
-            f"no independent model agreed with it; kept as the candidate nearest to one "
-            f"(attempt {witness + 1}, {distance:.1f}x the limits)" if witness is not None else
-            "no independent model agreed with it; kept as the candidate with the lowest mean "
-            "reprojection error")
+        best.attempt.note = ("no independent model agreed with it; kept as the candidate with the "
+                             "lowest mean reprojection error")
         log.warning("no independent COLMAP model confirmed the poses; keeping attempt %d "
                     "unconfirmed", runs.index(best) + 1)
     return best
@@ -358,15 +325,6 @@ def _sheet_advice(attempts: list[SfmAttempt], clahe: bool, max_features: int | N
                      "poses.sensor_width_mm)"]
 
 
-#: Two models whose poses differ by at most this many times the gate's limits nearly agree: the
-#: failure message names the limits that would confirm them.
-NEAR_AGREEMENT = 5.0
-
-
-def _ceil_to(value: float, step: float) -> float:
-    return max(step, float(np.ceil(value / step - 1e-9)) * step)
-
-
 def unconfirmed_message(attempts: list[SfmAttempt], chosen: SfmAttempt, gate: QualityGate,
                         clahe: bool = True, kept: bool = False) -> str:
     """Why the model kept was not confirmed, and which options to try (sheet syntax).
@@ -402,18 +360,6 @@ def unconfirmed_message(attempts: list[SfmAttempt], chosen: SfmAttempt, gate: Qu
         reasons[-1] += (f" (limits: poses.max_disagreement {gate.max_disagreement:g} of the "
                         f"extent, poses.max_rotation_disagreement_deg "
                         f"{gate.max_rotation_disagreement_deg:g})")
-        centre, rotation, first, second, _ = min(
-            disagreements, key=lambda item: max(item[0] / gate.max_disagreement,
-                                                item[1] / gate.max_rotation_disagreement_deg))
-        if max(centre / gate.max_disagreement,
-               rotation / gate.max_rotation_disagreement_deg) <= NEAR_AGREEMENT:
-            reasons.append(
-                f"attempts {first} and {second} nearly agree (within {NEAR_AGREEMENT:g}x the "
-                f"limits): if their cameras look right, limits of poses.max_disagreement="
-                f"{max(gate.max_disagreement, _ceil_to(centre, 0.01)):g} and "
-                f"poses.max_rotation_disagreement_deg="
-                f"{max(gate.max_rotation_disagreement_deg, _ceil_to(rotation, 1.0)):g} "
-                "confirm them")
     if not disagreements and not reasons:
         reasons.append("no independent model (the other mapper or matcher) passed the gate to "
                        "confirm it")

@@ -257,8 +257,7 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
     dive sets the sequential matches hold fewer false pairs); the other matcher's models serve
     as witnesses, and become candidates only when no model on the user's matcher passes the
     gate. Among confirmed candidates the one tried first wins; when no candidate is confirmed,
-    the one nearest to agreeing with an independent model is kept (else the one with the lowest
-    mean reprojection error), marked unconfirmed. The result also
+    the one with the lowest mean reprojection error is kept, marked unconfirmed. The result also
     holds each image's SIFT feature count and its best pair's verified matches, for the failure
     message.
     """
@@ -290,7 +289,7 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
                 chosen = confirmed_run(runs, comparisons, gate, settings.matcher,
                                        compare_models)
         if chosen is None and runs:
-            chosen = unconfirmed_run(runs, settings.matcher, cross_check, comparisons, gate)
+            chosen = unconfirmed_run(runs, settings.matcher, cross_check)
     # the exhaustive matcher's pairs, where it ran, are every pair
     databases = sorted(runner.matched.items(), key=lambda item: item[0][0] != "exhaustive")
     support = best_pair_inliers(databases[0][1], features) if databases else {}
