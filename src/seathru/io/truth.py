@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from seathru.errors import PipelineError
+from seathru.geometry.intrinsics import FULL_FRAME_DIAGONAL_MM
 from seathru.io.atomic import write_json, write_text
 from seathru.io.cameras import CameraSet, Frame, write_cameras
-from seathru.geometry.intrinsics import FULL_FRAME_DIAGONAL_MM
 from seathru.io.dng import write_dng
 from seathru.io.images import read_image, write_8bit, write_float_tiff
 from seathru.sim.dive import DivePlan, DiveSpec, SimulatedView
