@@ -10,7 +10,7 @@ from seathru.geometry.poses import umeyama
 from seathru.geometry.quality import (QualityGate, SfmAttempt, SfmRun, SfmSettings,
                                       confirmed_run, failure_message, independent,
                                       plan_attempts, pose_agreement, reprojection_scale,
-                                      unconfirmed_run)
+                                      unconfirmed_message, unconfirmed_run)
 
 
 def attempt(registered=10, total=10, error=0.5, passed=None, gate=QualityGate()) -> SfmAttempt:
@@ -141,6 +141,21 @@ def test_failure_message_lists_attempts_and_advice():
     assert "poses.clahe=true" in once and "poses.overlap" not in once
     assert failure_message([], None, 3, QualityGate()).startswith(
         "COLMAP registered only 0 of 3 images")
+
+
+def test_without_a_starting_focal_length_giving_one_comes_first():
+    # a 95-degree survey failed for want of one (its photographs recorded no focal length)
+    attempts = [SfmAttempt(settings={"matcher": "sequential", "mapper": "incremental", "seed": 0},
+                           registered=2, total=30)]
+    known = failure_message(attempts, attempts[0], 30, QualityGate(), focal_known=True)
+    unknown = failure_message(attempts, attempts[0], 30, QualityGate(), focal_known=False)
+    advice = unknown.split(" Try ", 1)[1]
+    assert advice.startswith("first a known focal length (poses.focal_px") and \
+        "record none" in advice
+    assert "first a known focal length" not in known and "another focal length" in known
+    assert "another focal length" not in unknown
+    confirmed = unconfirmed_message(attempts, attempts[0], QualityGate(), focal_known=False)
+    assert "first a known focal length" in confirmed
 
 
 def test_a_failure_on_a_handful_of_images_says_the_set_is_too_small():

@@ -285,11 +285,13 @@ def _unmatched(matched: dict[str, int], features: dict[str, int], total: int) ->
 
 def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total: int,
                     gate: QualityGate, matched: dict[str, int] | None = None,
-                    features: dict[str, int] | None = None, clahe: bool = True) -> str:
+                    features: dict[str, int] | None = None, clahe: bool = True,
+                    focal_known: bool | None = None) -> str:
     """Why no model registers enough images: every attempt, and what to try next (sheet
     syntax). ``matched`` (verified inliers of each image's best pair) and ``features`` (SIFT
     keypoints per image), by image name: to name the views that have nothing to match;
-    ``clahe``: whether the matching copies were equalised."""
+    ``clahe``: whether the matching copies were equalised; ``focal_known``: whether COLMAP
+    started from a focal length (the photographs' EXIF or the settings; None: not said)."""
     registered = chosen.registered if chosen else 0
     tried = "; ".join(
         f"{a.settings['matcher']} matching + {a.settings['mapper']} mapping, seed "
@@ -303,37 +305,45 @@ def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total
     return (f"COLMAP registered only {registered} of {total} images in its largest model "
             f"(need {gate.min_registered_fraction:.0%}).{few}"
             f"{_unmatched(matched or {}, features or {}, total)} Tried: {tried}. Try "
-            f"{', '.join(_sheet_advice(attempts, clahe, max_features=16384))}, or remove images "
+            f"{', '.join(_sheet_advice(attempts, clahe, 16384, focal_known))}, or remove images "
             f"that do not overlap the others"
             + (f". Unregistered: {listed}" if unregistered else ""))
 
 
-def _sheet_advice(attempts: list[SfmAttempt], clahe: bool, max_features: int | None = None
-                  ) -> list[str]:
+def _sheet_advice(attempts: list[SfmAttempt], clahe: bool, max_features: int | None = None,
+                  focal_known: bool | None = None) -> list[str]:
     """The poses options worth trying next, in the dataset sheet's syntax: the matchers and
     mappers no attempt used, then the settings no retry changes (``max_features``: a value to
-    suggest)."""
+    suggest). Without a starting focal length (``focal_known`` false) giving one comes first:
+    COLMAP's own estimate is what a wide-angle lens defeats (a 95-degree survey's models lay
+    82-87 degrees apart without it and agreed with it, ``workflow_trials.md``)."""
+    focal = "focal length (poses.focal_px, or poses.focal_mm with poses.sensor_width_mm)"
     tried = {(a.settings.get("matcher"), a.settings.get("mapper")) for a in attempts}
-    advice = [f"poses.matcher={m}" for m in MATCHERS if m not in {t[0] for t in tried}]
+    advice = [] if focal_known is not False else [
+        f"first a known {focal}: the photographs record none (EXIF FocalLengthIn35mmFilm), and "
+        f"COLMAP's own estimate fails most often with wide-angle lenses"]
+    advice += [f"poses.matcher={m}" for m in MATCHERS if m not in {t[0] for t in tried}]
     advice += [f"poses.mapper={m}" for m in MAPPERS if m not in {t[1] for t in tried}]
     if not attempts or {t[0] for t in tried} == set(MATCHERS):
         advice.append("a larger poses.overlap")
     features = f"poses.max_features={max_features}" if max_features else "more poses.max_features"
     return advice + ["a larger poses.max_image_size (-1: full size)",
-                     f"poses.clahe={'false' if clahe else 'true'}", features,
-                     "a known focal length (poses.focal_px, or poses.focal_mm with "
-                     "poses.sensor_width_mm)"]
+                     f"poses.clahe={'false' if clahe else 'true'}", features] + (
+        [f"another {focal} (the one used may be wrong: a cropped photograph keeps its "
+         f"camera's)"] if focal_known else [f"a known {focal}"] if focal_known is None else [])
 
 
 def unconfirmed_message(attempts: list[SfmAttempt], chosen: SfmAttempt, gate: QualityGate,
-                        clahe: bool = True, kept: bool = False) -> str:
+                        clahe: bool = True, kept: bool = False,
+                        focal_known: bool | None = None) -> str:
     """Why the model kept was not confirmed, and which options to try (sheet syntax).
 
     Names the kept attempt's figures, each failed limit (registered share, mean reprojection
     error) and the worst disagreements between attempts (camera centres as a share of the camera
     extent, rotations in degrees), or that no independent model passed the gate to compare with.
     ``clahe``: whether the matching copies were equalised (the advice is to try the other way);
-    ``kept``: the model is kept anyway (``poses.on_unconfirmed=warn``), else the step fails.
+    ``kept``: the model is kept anyway (``poses.on_unconfirmed=warn``), else the step fails;
+    ``focal_known``: whether COLMAP started from a focal length (None: not said).
     """
     index = attempts.index(chosen) + 1 if chosen in attempts else 0
     error = chosen.mean_reprojection_px
@@ -363,7 +373,7 @@ def unconfirmed_message(attempts: list[SfmAttempt], chosen: SfmAttempt, gate: Qu
     if not disagreements and not reasons:
         reasons.append("no independent model (the other mapper or matcher) passed the gate to "
                        "confirm it")
-    advice = _sheet_advice(attempts, clahe)
+    advice = _sheet_advice(attempts, clahe, focal_known=focal_known)
     ending = ("kept because poses.on_unconfirmed=warn: the model is trained on cameras that "
               "may be wrong" if kept else
               "or keep it with poses.on_unconfirmed=warn (the report then shows this)")

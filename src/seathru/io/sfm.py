@@ -419,11 +419,12 @@ def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: Q
         by_view = [{Path(file).stem: count for file, count in counts.items()}
                    for counts in (result.matched, result.features)]
         raise PipelineError(failure_message(result.attempts, chosen, len(names), gate, *by_view,
-                                            clahe=clahe))
+                                            clahe=clahe, focal_known=focal_px is not None))
     gate_message = None
     if not chosen.passed:
         gate_message = unconfirmed_message(result.attempts, chosen, gate, clahe,
-                                           kept=on_unconfirmed == "warn")
+                                           kept=on_unconfirmed == "warn",
+                                           focal_known=focal_px is not None)
         if on_unconfirmed == "fail":
             raise PipelineError(gate_message)
         log.info("keeping the unconfirmed model (poses.on_unconfirmed=warn)")
