@@ -315,8 +315,7 @@ def _sheet_advice(attempts: list[SfmAttempt], clahe: bool, max_features: int | N
     """The poses options worth trying next, in the dataset sheet's syntax: the matchers and
     mappers no attempt used, then the settings no retry changes (``max_features``: a value to
     suggest). Without a starting focal length (``focal_known`` false) giving one comes first:
-    COLMAP's own estimate is what a wide-angle lens defeats (a 95-degree survey's models lay
-    82-87 degrees apart without it and agreed with it, ``workflow_trials.md``)."""
+    COLMAP's own estimate is what a wide-angle lens defeats."""
     focal = "focal length (poses.focal_px, or poses.focal_mm with poses.sensor_width_mm)"
     tried = {(a.settings.get("matcher"), a.settings.get("mapper")) for a in attempts}
     advice = [] if focal_known is not False else [
