@@ -151,7 +151,7 @@ def test_without_a_starting_focal_length_giving_one_comes_first():
     unknown = failure_message(attempts, attempts[0], 30, QualityGate(), focal_known=False)
     advice = unknown.split(" Try ", 1)[1]
     assert advice.startswith("first a known focal length (poses.focal_px") and \
-        "record none" in advice
+        "had none to start from" in advice
     assert "first a known focal length" not in known and "another focal length" in known
     assert "another focal length" not in unknown
     confirmed = unconfirmed_message(attempts, attempts[0], QualityGate(), focal_known=False)

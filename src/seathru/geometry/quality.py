@@ -319,8 +319,9 @@ def _sheet_advice(attempts: list[SfmAttempt], clahe: bool, max_features: int | N
     focal = "focal length (poses.focal_px, or poses.focal_mm with poses.sensor_width_mm)"
     tried = {(a.settings.get("matcher"), a.settings.get("mapper")) for a in attempts}
     advice = [] if focal_known is not False else [
-        f"first a known {focal}: the photographs record none (EXIF FocalLengthIn35mmFilm), and "
-        f"COLMAP's own estimate fails most often with wide-angle lenses"]
+        f"first a known {focal}: COLMAP had none to start from (none in the photographs' EXIF, "
+        f"or images of several sizes), and its own estimate fails most often with wide-angle "
+        f"lenses"]
     advice += [f"poses.matcher={m}" for m in MATCHERS if m not in {t[0] for t in tried}]
     advice += [f"poses.mapper={m}" for m in MAPPERS if m not in {t[1] for t in tried}]
     if not attempts or {t[0] for t in tried} == set(MATCHERS):
