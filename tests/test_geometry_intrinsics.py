@@ -60,3 +60,14 @@ def test_initial_camera_params_put_the_principal_point_at_the_centre(model):
     k = camera.calibration_matrix()
     assert (k[0, 0], k[1, 1], k[0, 2], k[1, 2]) == (412.5, 412.5, 320.0, 240.5)
     assert all(p == 0.0 for p in params[len(params) - len(camera.extra_params_idxs()):])
+
+
+@pytest.mark.parametrize("width, height", [(320, 240), (240, 320), (6000, 4000)])
+def test_35mm_equivalents_go_by_the_diagonal_both_ways(width, height):
+    from seathru.geometry.intrinsics import focal_35mm_from_px, focal_px_from_35mm
+
+    # a 43.27 mm equivalent (the frame's diagonal) sees 53.1 degrees across the diagonal
+    assert focal_px_from_35mm(math.hypot(36.0, 24.0), width, height) == pytest.approx(
+        math.hypot(width, height))
+    assert focal_35mm_from_px(focal_px_from_35mm(27.0, width, height), width, height) == \
+        pytest.approx(27.0)

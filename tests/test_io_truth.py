@@ -32,7 +32,7 @@ def written(tmp_path_factory):
     names = truth.view_names(SPEC.views)
     frames = []
     for name, view in zip(names, views):
-        truth.write_view(root, name, view, SPEC.sensor)
+        truth.write_view(root, name, view, SPEC.sensor, plan.camera)
         frames.append(truth.truth_frame(name, plan.camera, view.c2w, view.range_m, "train"))
     truth.write_records(root, SPEC, plan, frames, test_every=0, open_water_pixels=0)
     return root, plan, dict(zip(names, views))
@@ -108,7 +108,7 @@ def survey_written(tmp_path_factory):
     names = truth.view_names(SURVEY.views)
     frames = []
     for name, view in zip(names, views):
-        truth.write_view(root, name, view, SURVEY.sensor)
+        truth.write_view(root, name, view, SURVEY.sensor, plan.camera)
         frames.append(truth.truth_frame(name, plan.camera, view.c2w, view.range_m, "test"))
     open_water = sum(int(np.isinf(view.range_m).sum()) for view in views)
     truth.write_records(root, SURVEY, plan, frames, test_every=1, open_water_pixels=open_water)
@@ -177,7 +177,7 @@ def test_truth_sparse_model_is_read_as_colmap_points_on_the_true_surfaces(tmp_pa
     plan = dive.plan_dive(spec, {})
     frames = []
     for name, view in zip(truth.view_names(spec.views), dive.render_views(spec, plan)):
-        truth.write_view(root, name, view, spec.sensor)
+        truth.write_view(root, name, view, spec.sensor, plan.camera)
         frames.append(truth.truth_frame(name, plan.camera, view.c2w, view.range_m, "train"))
     truth.write_records(root, spec, plan, frames, test_every=0, open_water_pixels=0)
     model_dir = truth.write_truth_sparse_model(root, per_view=60, seed=1)

@@ -17,6 +17,17 @@ CAMERA_MODELS: tuple[str, ...] = get_args(CameraModel)
 #: 35 mm equivalent focal lengths are defined on the 36 x 24 mm frame diagonal.
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 
+
+def focal_px_from_35mm(focal_35mm: float, width: int, height: int) -> float:
+    """The focal length in pixels of a ``width`` x ``height`` image whose 35 mm equivalent is
+    ``focal_35mm`` (by the diagonal: independent of the image's orientation and scale)."""
+    return focal_35mm / FULL_FRAME_DIAGONAL_MM * math.hypot(width, height)
+
+
+def focal_35mm_from_px(focal_px: float, width: int, height: int) -> float:
+    """The inverse of :func:`focal_px_from_35mm`."""
+    return focal_px * FULL_FRAME_DIAGONAL_MM / math.hypot(width, height)
+
 #: Metadata keys (lower case) that hold a focal length, by kind.
 FOCAL_KEYS = {
     "px": ("focal_length_px", "focal_px"),
@@ -93,7 +104,7 @@ def focal_from_metadata(metadata: Any, width: int, height: int) -> tuple[float |
     if focal_mm is not None and sensor is not None:
         return focal_mm / sensor * width, "manifest focal_length_mm / sensor_width_mm"
     if focal_35 is not None:
-        return (focal_35 / FULL_FRAME_DIAGONAL_MM * math.hypot(width, height),
+        return (focal_px_from_35mm(focal_35, width, height),
                 "manifest 35 mm equivalent focal length")
     if any(found.values()):
         return None, "manifest focal lengths missing a sensor width or not the same for all"

@@ -26,14 +26,13 @@ then uses as it uses COLMAP's points beside a poses step's cameras (the water be
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
 import numpy as np
 
 from seathru.errors import PipelineError
-from seathru.geometry.intrinsics import FULL_FRAME_DIAGONAL_MM
+from seathru.geometry.intrinsics import focal_35mm_from_px
 from seathru.io.atomic import write_json, write_text
 from seathru.io.cameras import CameraSet, Frame, write_cameras
 from seathru.io.dng import write_dng
@@ -90,24 +89,18 @@ def truth_frame(name: str, camera: Pinhole, c2w: np.ndarray, range_m: np.ndarray
                  split=split)
 
 
-def focal_length_35mm(camera) -> int:
-    """The 35 mm equivalent focal length a camera would record in EXIF for ``camera`` (``fx``,
-    ``width``, ``height``): by the image diagonal, as ``seathru.geometry.intrinsics`` reads it
-    back, in whole millimetres."""
-    return round(camera.fx * FULL_FRAME_DIAGONAL_MM / math.hypot(camera.width, camera.height))
-
-
 def write_view(root: Path, name: str, view: SimulatedView, sensor: SensorConfig,
-               camera=None) -> None:
+               camera: Pinhole) -> None:
     """The view's raw DNG, camera JPEG and truth images (clean, water, depth) under ``root``;
-    with ``camera`` (``seathru.sim.dive``'s plan camera) the DNG records its 35 mm equivalent
-    focal length, as a camera's EXIF does."""
+    the DNG records ``camera``'s 35 mm equivalent focal length in whole millimetres, as a
+    camera's EXIF does."""
     root = Path(root)
     exposure = view.exposure
     write_dng(root / "raw" / f"{name}.dng", view.raw, black_level=sensor.black_level,
               white_level=sensor.white_level, exposure_time_s=exposure.exposure_time_s,
               iso=exposure.iso, f_number=exposure.f_number, cfa_pattern=sensor.cfa_pattern,
-              focal_length_35mm=None if camera is None else focal_length_35mm(camera))
+              focal_length_35mm=round(focal_35mm_from_px(camera.fx, camera.width,
+                                                         camera.height)))
     write_8bit(root / "jpeg" / f"{name}.jpg", view.jpeg, JPEG_QUALITY)
     for kind, image in zip(TRUTH_KINDS, (view.clean, view.water, view.range_m)):
         write_float_tiff(root / "truth" / kind / f"{name}.tiff", image)
