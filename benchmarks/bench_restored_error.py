@@ -10,8 +10,10 @@ step scores the restored render (same undistortion onto the frame, same colour g
 - the model's own restored render (``restored_psnr_linear`` of ``metrics.csv``).
 
 Per range band (true range) the restored red against the clean red (mean ratio) and the model's
-depth against the true range (median ratio) show where the error sits. Writes
-``benchmarks/results/restored_error.md``.
+depth against the true range (median ratio) show where the error sits; per coverage (how many
+training views see the pixel's true surface, ``seathru.eval.truth.training_view_coverage``:
+none, one, two or more) the same for the surfaces no reconstruction or a single view pins.
+Writes ``benchmarks/results/restored_error.md``.
 
     python benchmarks/bench_restored_error.py --results results/demo
 """
@@ -69,7 +71,16 @@ def main() -> None:
     def psnr(image: np.ndarray, clean: np.ndarray, valid: np.ndarray) -> float:
         return metrics.image_metrics(image, clean, valid=valid)["psnr_linear"]
 
-    rows, bands = [], []
+    truth_cameras = read_cameras(truth_dir / "cameras.json")
+    true_frames = {f.name: f for f in truth_cameras.frames}
+
+    def true_range_of(name: str) -> np.ndarray:
+        depth = read_truth_image(truth_dir, "depth", name)
+        return (depth[..., 0] if depth.ndim == 3 else depth).astype(np.float64)
+
+    training = [(true_frames[f.name], true_range_of(f.name)) for f in cameras.frames
+                if f.split != "test" and f.name in true_frames]
+    rows, bands, coverage = [], [], []
     for frame in cameras.split("test"):
         view = frame.name
         full = read_render(root / "render", view, "full")
@@ -99,6 +110,19 @@ def main() -> None:
             bands.append((view, f"{low:g}-{high:g} m", float(band.mean()), red(restored),
                           red(by_model), float(np.median(depth[band] / true_range[band])),
                           float(squared[band].sum() / total), float(np.median(opacity[band]))))
+        counts = truth_eval.training_view_coverage(true_frames[view], true_range_of(view),
+                                                   training).astype(np.float32)
+        counts = np.round(resized_like(on_frame(counts, view), full[..., 0]))
+        counts = counts[..., 0] if counts.ndim == 3 else counts
+        for name, seen in (("none", counts == 0), ("one", counts == 1), ("two or more", counts >= 2)):
+            part = valid & seen
+            if part.sum() < 50:
+                continue
+            coverage.append((view, name, float(part.sum() / valid.sum()),
+                             psnr(restored, clean, part), psnr(by_model, clean, part),
+                             psnr(by_truth, clean, part),
+                             float(np.median(depth[part] / true_range[part])),
+                             float(squared[part].sum() / total)))
 
     lines = [
         "# What the restored view's error is made of (`benchmarks/bench_restored_error.py`)", "",
@@ -119,6 +143,15 @@ def main() -> None:
         "|---|---|---|---|---|---|---|---|",
         *(f"| {v} | {b} | {s:.2f} | {r:.3f} | {m:.3f} | {d:.3f} | {e:.2f} | {o:.2f} |"
           for v, b, s, r, m, d, e, o in bands), "",
+        "Per coverage (how many training views see the pixel's true surface, true cameras): "
+        "share of the view's surface pixels, PSNR of the restored render, of the restoration "
+        "by the model's depth and by the true range, the model's depth against the true range "
+        "(median ratio), and the share of the view's squared error of the restored render.", "",
+        "| view | seen by | share | restored render | by the model's depth | by the true range "
+        "| depth ratio | share of the restored error |",
+        "|---|---|---|---|---|---|---|---|",
+        *(f"| {v} | {n} | {s:.2f} | {r:.2f} | {m:.2f} | {t:.2f} | {d:.3f} | {e:.2f} |"
+          for v, n, s, r, m, t, d, e in coverage), "",
         f"Machine: {cpu_name()}; {time.strftime('%Y-%m-%d')}.",
     ]
     args.out.write_text("\n".join(lines) + "\n")
