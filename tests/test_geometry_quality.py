@@ -113,6 +113,35 @@ def test_a_candidate_is_kept_only_when_an_independent_model_agrees():
                      ("sequential incremental", "exhaustive incremental")]
 
 
+def test_a_confirmed_model_is_set_aside_where_a_disagreeing_one_fits_far_better():
+    """The demo of 043b253: the incremental mapper mirrored the scene on both matchers (0.71 and
+    0.75 px, 1% apart), the global mapper did not (0.25 and 0.27 px, 179 degrees from them)."""
+    agree = {"common_images": 24, "max_centre_deviation": 0.001, "max_rotation_deviation_deg": 0.1}
+    mirrored = {"common_images": 24, "max_centre_deviation": 0.3,
+                "max_rotation_deviation_deg": 179.4}
+    runs = _runs(("sequential", "incremental", True, 0.71), ("sequential", "global", True, 0.25),
+                 ("exhaustive", "incremental", True, 0.75))
+
+    def compare(a, b):
+        return agree if a.endswith("incremental") == b.endswith("incremental") else mirrored
+
+    comparisons: dict = {}
+    assert confirmed_run(runs, comparisons, QualityGate(rival_error_ratio=0), "sequential",
+                         compare) is runs[0]            # the check off: the mirror is kept
+    for run in runs:
+        run.attempt.note, run.attempt.comparisons = None, []
+    comparisons = {}
+    assert confirmed_run(runs, comparisons, QualityGate(), "sequential", compare) is None
+    assert "set aside: attempt 2" in runs[0].attempt.note and "0.25 px" in runs[0].attempt.note
+    runs += _runs(("exhaustive", "global", True, 0.27))
+    chosen = confirmed_run(runs, comparisons, QualityGate(), "sequential", compare)
+    assert chosen is runs[1] and "confirmed by attempt 4" in chosen.attempt.note
+    # a disagreeing model with an error not markedly lower does not set a confirmed one aside
+    close = _runs(("sequential", "incremental", True, 0.30), ("sequential", "global", True, 0.25),
+                  ("exhaustive", "incremental", True, 0.31))
+    assert confirmed_run(close, {}, QualityGate(), "sequential", compare) is close[0]
+
+
 def test_unconfirmed_keeps_the_lowest_error_candidate_and_marks_it():
     runs = _runs(("sequential", "incremental", True, 0.6), ("sequential", "global", True, 0.2),
                  ("exhaustive", "incremental", True, 0.1))

@@ -5,8 +5,10 @@ A model must register enough images with a low mean reprojection error (:class:`
 and, with the cross-check on, be confirmed by an independent model (the other mapper on the same
 matches, or either mapper on the other matcher's matches) agreeing on the poses after a
 similarity alignment: repeated texture can give a wrong model with every image registered and a
-low reprojection error, and two mappers rarely fail the same way. Until that happens the
-alternatives of :func:`plan_attempts` are tried in turn.
+low reprojection error, and two mappers rarely fail the same way. A model that another
+gate-passing model contradicts with a markedly lower reprojection error is set aside even when
+confirmed (a scene mapped mirrored by one mapper on both matchers). Until a model is confirmed
+the alternatives of :func:`plan_attempts` are tried in turn.
 """
 
 from __future__ import annotations
@@ -90,7 +92,12 @@ class QualityGate:
     The reprojection error limit applies at the resolution SIFT ran at; ``reprojection_scale``
     (matching image size / SIFT size, >= 1, :func:`reprojection_scale`) converts it to the
     model's pixels. Two independent models must agree on the camera poses within
-    ``max_disagreement`` of the camera extent and ``max_rotation_disagreement_deg``.
+    ``max_disagreement`` of the camera extent and ``max_rotation_disagreement_deg``. A model
+    is set aside, confirmed or not, where a gate-passing model that disagrees with it has a
+    mean reprojection error ``rival_error_ratio`` times lower (0: never): a scene mapped
+    mirrored (the relief inverted, cameras turned about 180 degrees) can register every image
+    below the limit and be matched by the same mapper on the other matcher, but it explains
+    the matches worse than the right one.
     """
 
     min_registered_fraction: float = 0.8
@@ -98,6 +105,7 @@ class QualityGate:
     reprojection_scale: float = 1.0
     max_disagreement: float = 0.01
     max_rotation_disagreement_deg: float = 1.0
+    rival_error_ratio: float = 1.5
 
     def check(self, attempt: SfmAttempt) -> bool:
         return (attempt.registered > 0
@@ -110,6 +118,13 @@ class QualityGate:
         return (agreement is not None
                 and agreement["max_centre_deviation"] <= self.max_disagreement
                 and agreement["max_rotation_deviation_deg"] <= self.max_rotation_disagreement_deg)
+
+    def outdoes(self, rival: SfmAttempt, attempt: SfmAttempt) -> bool:
+        """Whether ``rival``'s mean reprojection error is ``rival_error_ratio`` times lower
+        than ``attempt``'s (their poses' disagreement is judged apart)."""
+        ours, theirs = attempt.mean_reprojection_px, rival.mean_reprojection_px
+        return (self.rival_error_ratio > 0 and ours is not None and theirs is not None
+                and theirs * self.rival_error_ratio < ours)
 
 
 def reprojection_scale(image_size: tuple[int, int] | None, max_image_size: int) -> float:
@@ -211,29 +226,45 @@ def _candidates(runs: list[SfmRun], matcher: str) -> list[SfmRun]:
 def confirmed_run(runs: list[SfmRun], comparisons: dict[tuple[int, int], dict | None],
                   gate: QualityGate, matcher: str,
                   compare: Callable[[Any, Any], dict | None]) -> SfmRun | None:
-    """The earliest candidate that an independent gate-passing model agrees with.
+    """The earliest candidate that an independent gate-passing model agrees with and no
+    gate-passing model outdoes (:meth:`QualityGate.outdoes`, disagreeing with it).
 
     Candidates are the gate-passing runs on the user's ``matcher`` (for ordered dive sets the
     sequential matches hold fewer false pairs), or any gate-passing run when none is.
     ``comparisons`` caches ``compare(model_i, model_j)`` (see :func:`pose_agreement`) by run
     indices ``(i, j)``, ``i < j``; each new comparison is also recorded on run ``j``'s attempt.
-    The confirmed attempt gets its ``agreement`` and ``note``.
+    The confirmed attempt gets its ``agreement`` and ``note``; one set aside, its ``note``.
     """
     passed = [run for run in runs if run.attempt.passed]
+
+    def agreement(a: SfmRun, b: SfmRun) -> dict | None:
+        i, j = sorted((runs.index(a), runs.index(b)))
+        if (i, j) not in comparisons:
+            found = compare(runs[i].model, runs[j].model)
+            comparisons[(i, j)] = found
+            runs[j].attempt.comparisons.append({"with_attempt": i + 1, **(found or {})})
+            if not gate.agree(found):
+                log.warning("attempts %d and %d disagree on the poses (%s)", i + 1, j + 1,
+                            describe_agreement(found))
+        return comparisons[(i, j)]
+
     for candidate in _candidates(runs, matcher):
+        rival = next((run for run in passed if run is not candidate
+                      and gate.outdoes(run.attempt, candidate.attempt)
+                      and not gate.agree(agreement(candidate, run))), None)
+        if rival is not None:
+            note = (f"set aside: attempt {runs.index(rival) + 1}, which disagrees with it, "
+                    f"reprojects its points with {rival.attempt.mean_reprojection_px:.3g} px "
+                    f"against {candidate.attempt.mean_reprojection_px:.3g} px")
+            if candidate.attempt.note != note:
+                log.warning("attempt %d %s", runs.index(candidate) + 1, note)
+            candidate.attempt.note = note
+            continue
         for witness in passed:
             if witness is candidate or not independent(candidate.settings, witness.settings):
                 continue
-            i, j = sorted((runs.index(candidate), runs.index(witness)))
-            if (i, j) not in comparisons:
-                agreement = compare(runs[i].model, runs[j].model)
-                comparisons[(i, j)] = agreement
-                runs[j].attempt.comparisons.append({"with_attempt": i + 1, **(agreement or {})})
-                if not gate.agree(agreement):
-                    log.warning("attempts %d and %d disagree on the poses (%s)", i + 1, j + 1,
-                                describe_agreement(agreement))
-            if gate.agree(comparisons[(i, j)]):
-                candidate.attempt.agreement = comparisons[(i, j)]
+            if gate.agree(agreement(candidate, witness)):
+                candidate.attempt.agreement = agreement(candidate, witness)
                 candidate.attempt.note = (
                     f"confirmed by attempt {runs.index(witness) + 1} ({witness.settings.matcher}"
                     f" matching, {witness.settings.mapper} mapping)")

@@ -27,7 +27,11 @@ class ClaheRecord(TypedDict):
     tiles: int
 
 
-class GateRecord(TypedDict):
+class _GateOptional(TypedDict, total=False):
+    rival_error_ratio: float     # absent in reports written before it existed
+
+
+class GateRecord(_GateOptional):
     """``seathru.geometry.quality.QualityGate`` as used."""
 
     min_registered_fraction: float

@@ -256,8 +256,10 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
     fail that way at times. Models built on the user's matcher are the candidates (for ordered
     dive sets the sequential matches hold fewer false pairs); the other matcher's models serve
     as witnesses, and become candidates only when no model on the user's matcher passes the
-    gate. Among confirmed candidates the one tried first wins; when no candidate is confirmed,
-    the one with the lowest mean reprojection error is kept, marked unconfirmed. The result also
+    gate. Among confirmed candidates the one tried first wins, unless a gate-passing model that
+    disagrees with it has a ``gate.rival_error_ratio`` times lower mean reprojection error; when
+    no candidate is confirmed, the one with the lowest mean reprojection error is kept, marked
+    unconfirmed. The result also
     holds each image's SIFT feature count and its best pair's verified matches, for the failure
     message.
     """

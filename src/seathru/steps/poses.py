@@ -3,15 +3,12 @@
 Inputs: the ``ingest`` output folder (``matching/``, ``linear/``, ``masks/``, manifest).
 
 ``--source colmap`` (default) runs SIFT + matching + mapping on the matching copies (CLAHE
-contrast first, for murky water) and keeps the largest model. Quality gate: registered
-fraction, mean reprojection error and (``--cross-check``) confirmation by an independent model
-(the other mapper or matcher agreeing on the poses after a similarity alignment: repeated
-texture can give a wrong model with every image registered and a low reprojection error).
-Failing models are followed by retries (another seed, mapper, matcher). Fewer registered images
-than ``--min-registered`` is an error; a model not confirmed fails the step with what disagreed
-and what to try (``--on-unconfirmed fail``), or is kept with a warning (``warn``).
-``--source llff|colmap-model|nerfstudio`` reads poses that already exist in ``--source-dir``
-instead (LLFF rows named by the image folder ingest read, from its manifest).
+contrast first, for murky water). Quality gate (``seathru.geometry.quality``): registered
+fraction, mean reprojection error, confirmation by an independent model agreeing on the poses
+(``--cross-check``) and no disagreeing model with a much lower error; retries with another
+seed, mapper, matcher. Too few registered images is an error; a model not confirmed fails the
+step with what disagreed and what to try (``--on-unconfirmed fail``) or is kept with a warning.
+``--source llff|colmap-model|nerfstudio`` reads the poses in ``--source-dir`` instead.
 
 Outputs (``--out``, swapped in only when complete):
   cameras.json       pinhole cameras (seathru-cameras/1), OpenCV c2w, normalised units
@@ -103,6 +100,9 @@ class Settings:
                    "fraction of the camera extent")
     max_rotation_disagreement_deg: float = setting(
         1.0, help="cross-check: largest camera rotation deviation, degrees")
+    rival_error_ratio: float = setting(
+        1.5, help="cross-check: set a model aside where one that disagrees with it has this "
+                  "times lower mean reprojection error, e.g. a mirrored scene (0: never)")
     metres_per_unit: float | None = setting(None, help="metres per unit of the reconstruction, "
                                             "if known (unset: not known); water.json per metre")
     on_unconfirmed: Literal["fail", "warn"] = setting(
@@ -144,7 +144,7 @@ def run(args: argparse.Namespace) -> None:
                 max_image_size=cfg.max_image_size, max_features=cfg.max_features,
                 threads=args.threads, seed=cfg.seed, refine_focal=cfg.refine_focal)
             gate = QualityGate(cfg.min_registered, cfg.max_reproj_px, 1.0, cfg.max_disagreement,
-                               cfg.max_rotation_disagreement_deg)
+                               cfg.max_rotation_disagreement_deg, cfg.rival_error_ratio)
             focal = FocalPrior(cfg.focal_px, cfg.focal_mm, cfg.sensor_width_mm, ingest.manifest)
             dataset, details = colmap_poses(ingest, out, sfm, gate, focal, cfg.clahe,
                                             cfg.clahe_clip, cfg.clahe_tiles, cfg.retry,
