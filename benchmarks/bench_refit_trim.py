@@ -39,7 +39,7 @@ def measure(train: Path, trims: list[float]) -> dict:
     from bench_water_intervals import model_surfaces
     from seathru.nerf.water_fit import fit_surfaces
 
-    data, model, truth, trained, _ = model_surfaces(train.parent, train)
+    data, model, truth, trained, _, _ = model_surfaces(train.parent, train)
     row = {"model": f"{train.parent.parent.name}/{train.parent.name}",
            "trained": signed(trained, truth)}
     if isinstance(data, str):

@@ -121,14 +121,15 @@ def trained_dive(sim: Path, train: Path):
     return model, cameras, frames, images, masks, water_masks, in_view
 
 
-def model_surfaces(sim: Path, train: Path):
+def model_surfaces(sim: Path, train: Path, regroup: tuple[float, ...] = ()):
     """The surface data of a trained model as its final water assessment builds it (all
     training rays, not less the medium-selection hold-out; open water from the photographs
-    where in view), its model and the truth (in
-    normalised units). Returns (data or reason, model, truth, trained water, scale)."""
+    where in view, and whether it looks below the horizon), its model and the truth (in
+    normalised units). Returns (data or reason, model, truth, trained water, scale, the same
+    pixels grouped at each of ``regroup`` times the refit voxel)."""
     from seathru.io.water import read_truth_water, read_water
     from seathru.nerf.rays import RayDataset
-    from seathru.nerf.water_refit import refit_open_water_opacity
+    from seathru.nerf.water_refit import below_horizon, refit_open_water_opacity
     from seathru.nerf.water_fit import surface_data
 
     model, cameras, frames, images, masks, water_masks, in_view = trained_dive(sim, train)
@@ -143,15 +144,17 @@ def model_surfaces(sim: Path, train: Path):
             depth.append(render.depth_median)
             opacity.append(render.opacity)
     diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
-    data = surface_data(rays.origins, rays.directions, rays.rgb, torch.cat(depth),
-                        torch.cat(opacity), config.medium.refit_voxel * diagonal,
-                        config.medium.refit_opacity,
-                        open_water_opacity=refit_open_water_opacity(config.medium, in_view,
-                                                                    1.0),
-                        open_water=rays.open_water)
+    below = below_horizon(rays.directions, model.scene.get("up"), config.medium.horizon_margin)
+    data, *regrouped = [
+        surface_data(rays.origins, rays.directions, rays.rgb, torch.cat(depth),
+                     torch.cat(opacity), factor * config.medium.refit_voxel * diagonal,
+                     config.medium.refit_opacity,
+                     open_water_opacity=refit_open_water_opacity(config.medium, in_view, 1.0),
+                     open_water=rays.open_water, below_horizon=below)
+        for factor in (1.0, *regroup)]
     report = read_water(train / "water.json")
     truth = read_truth_water(sim / "truth" / "water.json").scaled(1 / report.scale).as_dict()
-    return data, model, truth, report.normalised.as_dict(), report.scale
+    return data, model, truth, report.normalised.as_dict(), report.scale, regrouped
 
 
 def assess_model(sim: Path, train: Path) -> dict:
@@ -160,7 +163,7 @@ def assess_model(sim: Path, train: Path) -> dict:
     from seathru.nerf.water_fit import fit_surfaces
     from seathru.nerf.water_uncertainty import laplace_halfwidths, robust_halfwidths
 
-    data, model, truth, trained, scale = model_surfaces(sim, train)
+    data, model, truth, trained, scale, _ = model_surfaces(sim, train)
     record = {"model": f"{sim.name}/{train.name}", "scale": scale, "truth": truth,
               "trained": trained}
     if isinstance(data, str):

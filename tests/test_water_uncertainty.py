@@ -9,7 +9,8 @@ import torch
 from seathru.nerf.water_fit import WaterFit, fit_water, projected_loss
 from seathru.nerf.water_uncertainty import (cluster_variances, far_surface_range, group_scores,
                                             interval_determined, laplace_halfwidths,
-                                            robust_halfwidths, surface_behind_open_water)
+                                            robust_halfwidths, surface_behind_open_water,
+                                            veiling_beyond_surfaces)
 from tests.test_water_fit import KEYS, START, TRUE, _fit_and_spread, _observations
 
 def test_laplace_intervals_hold_the_truth_and_flag_what_the_views_cannot_tell():
@@ -282,3 +283,63 @@ def test_far_seabed_taken_for_open_water_widens_the_interval_when_it_lies_below_
         for value, half, true in zip(getattr(fit, key), allowed.halfwidth[key], TRUE[key]):
             assert abs(value - true) <= half, key
     assert not all(allowed.determined["c_med"])
+
+
+def test_the_veiling_light_beyond_the_surfaces_moves_along_the_backscatter_they_show():
+    """The allowance's sigma_bs move keeps the backscatter at the median range where the
+    veiling light falls to the farthest surfaces' backscatter (float64), and stays finite as
+    sigma_bs -> 0 (the limit of that ratio is median / far)."""
+    ranges = torch.linspace(1.0, 4.0, 1001, dtype=torch.float64)
+    middle, far = float(ranges.median()), float(torch.quantile(ranges, 0.9))
+    bs, c_med = torch.tensor([0.41, 0.24, 0.19], dtype=torch.float64), torch.tensor(
+        [0.05, 0.24, 0.34], dtype=torch.float64)
+    theta = torch.cat([torch.tensor([0.5, 0.3, 0.2], dtype=torch.float64), bs, c_med])
+    moves = veiling_beyond_surfaces(theta, ranges)
+    assert torch.equal(moves[0:3], torch.zeros(3, dtype=torch.float64))
+    assert torch.allclose(moves[6:9].sqrt(), c_med * torch.exp(-bs * far), rtol=1e-12)
+    raised = bs + moves[3:6].sqrt()
+    veil = c_med * (1 - torch.exp(-bs * far))
+    assert torch.allclose(veil * (1 - torch.exp(-raised * middle)),
+                          c_med * (1 - torch.exp(-bs * middle)), rtol=1e-9)
+    for tiny in (0.0, 1e-12):
+        limit = veiling_beyond_surfaces(torch.cat([theta[0:3], torch.full((3,), tiny,
+                                        dtype=torch.float64), c_med]), ranges)
+        assert torch.isfinite(limit).all()
+        assert limit[3:6].sqrt() == pytest.approx(
+            [-np.log1p(-middle / far) / middle] * 3, rel=1e-6)
+        assert limit[6:9].sqrt() == pytest.approx(c_med.tolist(), rel=1e-9)
+
+
+def test_without_open_water_the_unseen_veiling_light_widens_the_backscatter_intervals():
+    """A transect: surfaces at 1.5-4 units with the far ones placed short (the model's range
+    bent by (z / median)^-0.1). The fit slides along the backscatter curve (c_med 3-9% low,
+    sigma_bs 21-43% high) and the data-split intervals miss it; the allowance for the veiling
+    light the surfaces do not show holds it, and leaves sigma_attn alone."""
+    rng = np.random.default_rng(0)
+    ranges, observed, ids, groups = _observations(rng, groups=200, per_group=8, near=1.5,
+                                                  far=4.0, noise=0.005)
+    ranges = ranges * (ranges / ranges.median()) ** -0.1
+    fit = fit_water(ranges, observed, ids, groups, START)
+    plain = robust_halfwidths(fit, ranges, observed, ids, groups)
+    allowed = robust_halfwidths(fit, ranges, observed, ids, groups, unseen_veiling=True)
+    assert "veiling_beyond_surfaces" in allowed.splits
+    assert "veiling_beyond_surfaces" not in plain.splits
+
+    def misses(spread, key):
+        return sum(abs(v - t) > h for v, h, t in zip(getattr(fit, key), spread.halfwidth[key],
+                                                     TRUE[key]))
+
+    assert misses(plain, "sigma_bs") + misses(plain, "c_med") >= 4
+    assert misses(allowed, "sigma_bs") + misses(allowed, "c_med") == 0
+    assert allowed.halfwidth["sigma_attn"] == plain.halfwidth["sigma_attn"]
+    assert not any(allowed.determined["sigma_bs"])
+    # surfaces out to where the backscatter has saturated: hardly any allowance
+    long = _observations(rng, groups=200, per_group=8, near=1.5, far=30.0, noise=0.005)
+    fit_long = fit_water(*long, START)
+    moves = robust_halfwidths(fit_long, *long, unseen_veiling=True).splits[
+        "veiling_beyond_surfaces"]
+    assert all(m < 0.02 * c for m, c in zip(moves[6:9], fit_long.c_med))
+    # with open water in view the veiling light is seen: no allowance
+    seen = _with_open_water(long, TRUE["c_med"], rng)
+    assert "veiling_beyond_surfaces" not in robust_halfwidths(
+        fit_water(*seen, START), *seen, unseen_veiling=True).splits

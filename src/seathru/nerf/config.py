@@ -156,6 +156,10 @@ class MediumConfig:
              "pixels are grouped in voxels this many times refit_voxel (where the model places "
              "surfaces inconsistently between views the water depends on the grouping); "
              "empty = not")
+    interval_unseen_veiling: bool = setting(
+        True, help="without open water in view, water.json's intervals also allow for the "
+                   "veiling light beyond the farthest surfaces, which only the curvature of "
+                   "their backscatter with range shows (transects, orbits; docs/water.md)")
     interval_floor: float = setting(
         0.01, help="least 95% half-width of each water value in water.json, as a share of it: "
                    "what the image values themselves are known to (black level, "

@@ -198,6 +198,7 @@ class WaterRefitting:
         spread = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,
                                    colour_max=model.medium.colour_max,
                                    open_water_beyond=beyond,
+                                   unseen_veiling=medium.interval_unseen_veiling,
                                    dark=data.dark if medium.dark_pixel_bound else None,
                                    range_error=medium.interval_range_error,
                                    min_relative=medium.interval_floor,

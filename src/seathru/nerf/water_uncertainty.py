@@ -69,7 +69,8 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
                       min_groups: int = 20, range_error: float = 0.0,
                       min_relative: float = 0.0,
                       regrouped: Sequence[tuple[Tensor, Tensor, Tensor, int]] = (),
-                      open_water_beyond: float | None = None) -> WaterUncertainty:
+                      open_water_beyond: float | None = None,
+                      unseen_veiling: bool = False) -> WaterUncertainty:
     """95% intervals of the fitted water that hold model error: a cluster-robust statistical
     part and a systematic part from how much parts of the data disagree.
 
@@ -106,7 +107,9 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     colour). With ``open_water_beyond``, the open-water pixels may instead be surfaces at that
     range or farther (:func:`surface_behind_open_water`): the fit is redone on their colour
     less what such a surface would add, as bright as the scene's bright surfaces or black, and
-    the larger move is one more ``d^2``. The interval is a prediction interval,
+    the larger move is one more ``d^2``. With ``unseen_veiling`` and no open-water pixels, the
+    veiling light the farthest surfaces do not yet show is one more (:func:`veiling_beyond_surfaces`).
+    The interval is a prediction interval,
     ``1.96 sqrt(var + max tau^2)``: the fit's error is taken to be one more draw of the error that makes parts of the data disagree.
     With independent noise ``tau^2`` is an estimate of zero and the coverage stays near 95%
     (97% measured); on fits on trained models' own surfaces it goes from 61-72% (curvature)
@@ -137,6 +140,8 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
         open_water_beyond: where the open-water pixels may be a far surface (they look below
             the horizon: ``SurfaceData.open_water_below_horizon``), the least range of that
             surface (:func:`far_surface_range`); None leaves the comparison out.
+        unseen_veiling: without open-water pixels, allow for the veiling light beyond the
+            surfaces (:func:`veiling_beyond_surfaces`); False leaves the comparison out.
 
     Returns:
         half-widths and flags per parameter and channel; ``statistical`` and ``systematic``
@@ -186,6 +191,9 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
         between["open_water_pull"] = pull
     if dark is not None and whole is not None:
         between["dark_bound"] = (whole[0] - theta) ** 2
+    if unseen_veiling and not bool(water.any()) and bool(torch.isfinite(ranges).any()):
+        between["veiling_beyond_surfaces"] = _finite_variance(
+            veiling_beyond_surfaces(theta, ranges))
     if open_water_beyond is not None and bool(water.any()) and whole is not None:
         moves = [water_vector(fit_water(ranges, shifted, ids, groups, start, steps, colour_max,
                                   balance_brightness=balance)) - whole[0]
@@ -215,6 +223,51 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     result.systematic = _by_name((1.96 * tau2.sqrt()).tolist())
     result.splits = {name: (1.96 * value.sqrt()).tolist() for name, value in between.items()}
     return result
+
+
+def veiling_beyond_surfaces(theta: Tensor, ranges: Tensor, quantile: float = 0.9) -> Tensor:
+    """Squared moves (9,) of ``sigma_bs`` and ``c_med`` allowed for where no open water is in
+    view: the veiling light is then seen only through the surfaces' backscatter,
+    ``c_med (1 - exp(-sigma_bs z))``, up to the farthest surface, and the part those surfaces
+    do not yet show, ``c_med exp(-sigma_bs z_far)``, rests on the curvature of that curve
+    over the ranges in view, which a NeRF's depth and colour errors bend (on the water
+    benchmark's transects ``c_med`` 15-23% high and ``sigma_bs`` 21-23% low in default water,
+    outside intervals of 12-14%). That part is taken as the move of ``c_med``; ``sigma_bs``
+    moves along the curve that keeps the backscatter at the median range: up to where the
+    veiling light is no more than the farthest surfaces' backscatter, down to where it is that
+    much more.
+
+    Args:
+        theta: (9,) the water (``sigma_attn``, ``sigma_bs``, ``c_med``).
+        ranges: (N,) ranges (inf: open water, left out).
+        quantile: which range counts as the farthest surfaces' (:func:`far_surface_range`).
+
+    Returns:
+        (9,) squared moves: zero for ``sigma_attn``.
+
+    Example::
+
+        moves = veiling_beyond_surfaces(water_vector(fit), z)
+        halfwidth_c_med = 1.96 * moves[6:9].sqrt()   # the allowance alone
+    """
+    theta = theta.double()
+    finite = ranges[torch.isfinite(ranges)].double()
+    far = float(torch.quantile(finite, quantile))
+    middle = float(finite.median())
+    bs, c_med = theta[3:6].clamp_min(0.0), theta[6:9]
+    unseen = c_med * torch.exp(-bs * far)
+    # backscatter at the median range over the veiling light, at the two ends of the move;
+    # the first as sigma_bs -> 0 tends to middle / far
+    tiny = bs * far < 1e-9
+    saturated = torch.where(tiny, torch.full_like(bs, middle / far),
+                            torch.expm1(-bs * middle) / torch.expm1(-bs * far).where(~tiny, -1.0))
+    diluted = -torch.expm1(-bs * middle) / (1.0 + torch.exp(-bs * far))
+    high = -torch.log1p(-saturated) / middle
+    low = -torch.log1p(-diluted) / middle
+    moves = torch.zeros_like(theta)
+    moves[3:6] = torch.maximum(high - bs, bs - low) ** 2
+    moves[6:9] = unseen ** 2
+    return moves
 
 
 def far_surface_range(ranges: Tensor, quantile: float = 0.9) -> float:
