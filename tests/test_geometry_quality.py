@@ -193,6 +193,14 @@ def test_a_failure_on_a_handful_of_images_says_the_set_is_too_small():
     assert "Only" not in failure_message([], None, 40, QualityGate())
 
 
+def test_a_failure_where_the_camera_did_not_move_says_so_instead_of_settings():
+    still = failure_message([], None, 16, QualityGate(), largest_shift=0.0001)
+    assert "taken from one place" in still and "0.01% of the image diagonal" in still
+    assert "poses.focal_px" not in still
+    moving = failure_message([], None, 16, QualityGate(), largest_shift=0.08)
+    assert "taken from one place" not in moving and "poses.focal_px" in moving
+
+
 def test_a_failure_names_the_views_that_share_no_matches():
     gate = QualityGate()
     matched = {"reef_01": 800, "reef_02": 800, "blue_02": 0, "blue_03": 14}

@@ -592,6 +592,31 @@ def test_unrelated_images_fail_with_advice_and_leave_nothing(tmp_path):
     assert list((tmp_path / "results").iterdir()) == []
 
 
+def test_photographs_from_one_place_fail_saying_the_camera_must_move(tmp_path):
+    """A fixed camera's time-lapse: one view, sensor noise only. COLMAP cannot triangulate
+    from it; the message says why instead of suggesting settings, after a single attempt."""
+    import skimage.data
+
+    ingest = tmp_path / "ingest"
+    for folder in ("matching", "linear"):
+        (ingest / folder).mkdir(parents=True)
+    scene = cv2.resize(skimage.data.coffee(), (240, 180), interpolation=cv2.INTER_AREA)
+    rng = np.random.default_rng(0)
+    for i in range(8):
+        frame = np.clip(scene + rng.normal(0.0, 2.0, scene.shape), 0, 255).astype(np.uint8)
+        for folder in ("matching", "linear"):
+            cv2.imwrite(str(ingest / folder / f"timelapse_{i:03d}.png"), frame[..., ::-1])
+    out = tmp_path / "results" / "poses"
+    with pytest.raises(PipelineError) as failure:
+        run_poses("--ingest", str(ingest), "--out", str(out), "--threads", THREADS)
+    message = str(failure.value)
+    assert "registered only 0 of 8 images: the photographs were taken from one place" in message
+    assert "photographs from several positions" in message
+    assert "poses.focal_px" not in message and "poses.max_features" not in message
+    assert message.count("seed") == 1          # one attempt: no setting would have helped
+    assert not out.exists()
+
+
 def test_views_of_open_water_fail_saying_they_hold_no_features(tmp_path):
     # a diver's frames of blue water: a vertical gradient and sensor noise, nothing to match
     ingest = tmp_path / "ingest"

@@ -291,6 +291,11 @@ def unconfirmed_run(runs: list[SfmRun], matcher: str, cross_check: bool) -> SfmR
 #: Below this many images a failed registration is most likely the set's size.
 FEW_IMAGES = 10
 
+#: Below this largest median shift of matched features between two photographs (a share of the
+#: image diagonal) the camera did not move: 0.01% on copies of one frame, 8-42% between the
+#: frames of dives that registered (d3_reef, a simulated transect).
+STILL_SHIFT = 0.01
+
 #: COLMAP keeps an image pair with at least 15 verified (inlier) matches: an image with fewer
 #: with every other image has no partner to register with.
 FEW_MATCHES = 15
@@ -317,12 +322,16 @@ def _unmatched(matched: dict[str, int], features: dict[str, int], total: int) ->
 def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total: int,
                     gate: QualityGate, matched: dict[str, int] | None = None,
                     features: dict[str, int] | None = None, clahe: bool = True,
-                    focal_known: bool | None = None) -> str:
+                    focal_known: bool | None = None,
+                    largest_shift: float | None = None) -> str:
     """Why no model registers enough images: every attempt, and what to try next (sheet
     syntax). ``matched`` (verified inliers of each image's best pair) and ``features`` (SIFT
     keypoints per image), by image name: to name the views that have nothing to match;
     ``clahe``: whether the matching copies were equalised; ``focal_known``: whether COLMAP
-    started from a focal length (the photographs' EXIF or the settings; None: not said)."""
+    started from a focal length (the photographs' EXIF or the settings; None: not said);
+    ``largest_shift``: how far matched features move between any two photographs, as a share
+    of the image diagonal (``seathru.io.sfm.largest_pair_shift``; below :data:`STILL_SHIFT`
+    the photographs were taken from one place, and no COLMAP setting helps)."""
     registered = chosen.registered if chosen else 0
     tried = "; ".join(
         f"{a.settings['matcher']} matching + {a.settings['mapper']} mapping, seed "
@@ -333,6 +342,13 @@ def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total
     few = (f" Only {total} images: structure from motion and a NeRF need tens of overlapping "
            f"photographs of the scene (each part seen from three or more positions)."
            if total < FEW_IMAGES else "")
+    if largest_shift is not None and largest_shift < STILL_SHIFT:
+        return (f"COLMAP registered only {registered} of {total} images: the photographs were "
+                f"taken from one place (matched features move at most {largest_shift:.2%} of "
+                f"the image diagonal between any two of them, as on a tripod or a fixed "
+                f"mount). A 3D model needs photographs from several positions: swim along or "
+                f"around the scene with each photograph overlapping the next by about two "
+                f"thirds, or leave the still frames out. Tried: {tried}")
     return (f"COLMAP registered only {registered} of {total} images in its largest model "
             f"(need {gate.min_registered_fraction:.0%}).{few}"
             f"{_unmatched(matched or {}, features or {}, total)} Tried: {tried}. Try "

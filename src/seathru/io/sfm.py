@@ -25,8 +25,8 @@ import pycolmap
 from seathru.errors import PipelineError
 from seathru.geometry.intrinsics import FocalPrior, initial_camera_params
 from seathru.geometry.poses import c2w_from_cam_from_world
-from seathru.geometry.quality import (MAPPERS, MATCHERS, QualityGate, SfmAttempt, SfmRun,
-                                      SfmSettings, confirmed_run, failure_message,
+from seathru.geometry.quality import (MAPPERS, MATCHERS, STILL_SHIFT, QualityGate, SfmAttempt,
+                                      SfmRun, SfmSettings, confirmed_run, failure_message,
                                       plan_attempts, pose_agreement, reprojection_scale,
                                       unconfirmed_message, unconfirmed_run)
 from seathru.io.colmap import model_images
@@ -189,6 +189,7 @@ class SfmResult:
     attempts: list[SfmAttempt]
     features: dict[str, int] = field(default_factory=dict)  # SIFT keypoints per image name
     matched: dict[str, int] = field(default_factory=dict)  # inliers of each image's best pair
+    largest_shift: float | None = None  # largest_pair_shift of the matches
 
     @property
     def passed(self) -> bool:
@@ -256,11 +257,13 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
     fail that way at times. Models built on the user's matcher are the candidates (for ordered
     dive sets the sequential matches hold fewer false pairs); the other matcher's models serve
     as witnesses, and become candidates only when no model on the user's matcher passes the
-    gate. Among confirmed candidates the one tried first wins, unless a gate-passing model that
-    disagrees with it has a ``gate.rival_error_ratio`` times lower mean reprojection error; when
-    no candidate is confirmed, the one with the lowest mean reprojection error is kept, marked
-    unconfirmed. The result also
-    holds each image's SIFT feature count and its best pair's verified matches, for the failure
+    gate; where the first attempt registers nothing and the matched features hardly move
+    between photographs (:func:`largest_pair_shift` below ``STILL_SHIFT``: taken from one
+    place), nothing else is tried. Among confirmed candidates the one tried first wins, unless
+    a gate-passing model that disagrees with it has a ``gate.rival_error_ratio`` times lower
+    mean reprojection error; when no candidate is confirmed, the one with the lowest mean
+    reprojection error is kept, marked unconfirmed. The result also holds each image's SIFT
+    feature count, its best pair's verified matches and the largest shift, for the failure
     message.
     """
     work_dir.mkdir(parents=True, exist_ok=True)
@@ -283,6 +286,13 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
                     "cross-check" if cross_check and runs[0].attempt.passed else "retry")
             attempt, model = runner.run(current, role)
             runs.append(SfmRun(current, attempt, model))
+            if len(runs) == 1 and attempt.registered == 0 and runner.matched:
+                shift = largest_pair_shift(next(iter(runner.matched.values())))
+                if shift is not None and shift < STILL_SHIFT:
+                    log.warning("matched features move at most %.2f%% of the image diagonal "
+                                "between photographs: taken from one place, no retry",
+                                100 * shift)
+                    break
             if len(runs) == 1 and not attempt.passed and retry:
                 queue.insert(0, replace(current, seed=current.seed + 1))
             if not cross_check:
@@ -295,9 +305,10 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
     # the exhaustive matcher's pairs, where it ran, are every pair
     databases = sorted(runner.matched.items(), key=lambda item: item[0][0] != "exhaustive")
     support = best_pair_inliers(databases[0][1], features) if databases else {}
+    shift = largest_pair_shift(databases[0][1]) if databases else None
     if chosen is None or chosen.attempt.registered == 0:
-        return SfmResult(None, None, runner.attempts, features, support)
-    return SfmResult(chosen.model, chosen.attempt, runner.attempts, features, support)
+        return SfmResult(None, None, runner.attempts, features, support, shift)
+    return SfmResult(chosen.model, chosen.attempt, runner.attempts, features, support, shift)
 
 
 def feature_counts(database: Path) -> dict[str, int]:
@@ -322,6 +333,36 @@ def best_pair_inliers(database: Path, features: dict[str, int]) -> dict[str, int
                 name = names[image_id]
                 best[name] = max(best.get(name, 0), int(inliers))
         return best
+    finally:
+        db.close()
+
+
+def largest_pair_shift(database: Path) -> float | None:
+    """How far matched features move between photographs: over the verified pairs of a matched
+    COLMAP database, the largest of each pair's median image displacement of its inlier
+    matches, as a share of the image diagonal (None: no verified pair). Near zero only where
+    every photograph was taken from one place (on a tripod or a fixed mount: 0.01% for
+    copies of one d3_reef frame against 18% for the diver's 20 frames around the coral head)."""
+    db = pycolmap.Database.open(database)
+    try:
+        cameras = {camera.camera_id: camera for camera in db.read_all_cameras()}
+        camera_of = {image.image_id: image.camera_id for image in db.read_all_images()}
+        keypoints: dict[int, np.ndarray] = {}
+        largest = None
+        for pair_id, geometry in zip(*db.read_two_view_geometries()):
+            matches = geometry.inlier_matches
+            if len(matches) == 0:
+                continue
+            first, second = pycolmap.pair_id_to_image_pair(pair_id)
+            for image_id in (first, second):
+                if image_id not in keypoints:
+                    keypoints[image_id] = db.read_keypoints(image_id)[:, :2]
+            moved = np.linalg.norm(keypoints[first][matches[:, 0]]
+                                   - keypoints[second][matches[:, 1]], axis=1)
+            camera = cameras[camera_of[first]]
+            shift = float(np.median(moved) / np.hypot(camera.width, camera.height))
+            largest = shift if largest is None else max(largest, shift)
+        return largest
     finally:
         db.close()
 
@@ -421,7 +462,8 @@ def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: Q
         by_view = [{Path(file).stem: count for file, count in counts.items()}
                    for counts in (result.matched, result.features)]
         raise PipelineError(failure_message(result.attempts, chosen, len(names), gate, *by_view,
-                                            clahe=clahe, focal_known=focal_px is not None))
+                                            clahe=clahe, focal_known=focal_px is not None,
+                                            largest_shift=result.largest_shift))
     gate_message = None
     if not chosen.passed:
         gate_message = unconfirmed_message(result.attempts, chosen, gate, clahe,
