@@ -308,6 +308,9 @@ def test_the_veiling_light_beyond_the_surfaces_moves_along_the_backscatter_they_
         assert limit[3:6].sqrt() == pytest.approx(
             [-np.log1p(-middle / far) / middle] * 3, rel=1e-6)
         assert limit[6:9].sqrt() == pytest.approx(c_med.tolist(), rel=1e-9)
+    # surfaces all at one range bound sigma_bs nowhere
+    alike = veiling_beyond_surfaces(theta, torch.full((50,), 3.0, dtype=torch.float64))
+    assert torch.isinf(alike[3:6]).all() and torch.isfinite(alike[6:9]).all()
 
 
 def test_without_open_water_the_unseen_veiling_light_widens_the_backscatter_intervals():

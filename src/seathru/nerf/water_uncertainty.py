@@ -108,8 +108,8 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     range or farther (:func:`surface_behind_open_water`): the fit is redone on their colour
     less what such a surface would add, as bright as the scene's bright surfaces or black, and
     the larger move is one more ``d^2``. With ``unseen_veiling`` and no open-water pixels, the
-    veiling light the farthest surfaces do not yet show is one more (:func:`veiling_beyond_surfaces`).
-    The interval is a prediction interval,
+    veiling light the farthest surfaces do not yet show is one more
+    (:func:`veiling_beyond_surfaces`). The interval is a prediction interval,
     ``1.96 sqrt(var + max tau^2)``: the fit's error is taken to be one more draw of the error that makes parts of the data disagree.
     With independent noise ``tau^2`` is an estimate of zero and the coverage stays near 95%
     (97% measured); on fits on trained models' own surfaces it goes from 61-72% (curvature)
@@ -192,8 +192,7 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     if dark is not None and whole is not None:
         between["dark_bound"] = (whole[0] - theta) ** 2
     if unseen_veiling and not bool(water.any()) and bool(torch.isfinite(ranges).any()):
-        between["veiling_beyond_surfaces"] = _finite_variance(
-            veiling_beyond_surfaces(theta, ranges))
+        between["veiling_beyond_surfaces"] = veiling_beyond_surfaces(theta, ranges)
     if open_water_beyond is not None and bool(water.any()) and whole is not None:
         moves = [water_vector(fit_water(ranges, shifted, ids, groups, start, steps, colour_max,
                                   balance_brightness=balance)) - whole[0]
@@ -230,12 +229,12 @@ def veiling_beyond_surfaces(theta: Tensor, ranges: Tensor, quantile: float = 0.9
     view: the veiling light is then seen only through the surfaces' backscatter,
     ``c_med (1 - exp(-sigma_bs z))``, up to the farthest surface, and the part those surfaces
     do not yet show, ``c_med exp(-sigma_bs z_far)``, rests on the curvature of that curve
-    over the ranges in view, which a NeRF's depth and colour errors bend (on the water
-    benchmark's transects ``c_med`` 15-23% high and ``sigma_bs`` 21-23% low in default water,
-    outside intervals of 12-14%). That part is taken as the move of ``c_med``; ``sigma_bs``
-    moves along the curve that keeps the backscatter at the median range: up to where the
-    veiling light is no more than the farthest surfaces' backscatter, down to where it is that
-    much more.
+    over the ranges in view, which a NeRF's depth and colour errors bend: the fit slides along
+    the curve, and the data splits slide with it (docs/water.md). That part is taken as the
+    move of ``c_med``; ``sigma_bs`` moves along the curve that keeps the backscatter at the
+    median range: up to where the veiling light is no more than the farthest surfaces'
+    backscatter, down to where it is that much more. Ranges all alike bound nothing: the move
+    of ``sigma_bs`` is then infinite.
 
     Args:
         theta: (9,) the water (``sigma_attn``, ``sigma_bs``, ``c_med``).
@@ -243,7 +242,7 @@ def veiling_beyond_surfaces(theta: Tensor, ranges: Tensor, quantile: float = 0.9
         quantile: which range counts as the farthest surfaces' (:func:`far_surface_range`).
 
     Returns:
-        (9,) squared moves: zero for ``sigma_attn``.
+        (9,) squared moves: zero for ``sigma_attn``, inf where unbounded.
 
     Example::
 
@@ -267,7 +266,7 @@ def veiling_beyond_surfaces(theta: Tensor, ranges: Tensor, quantile: float = 0.9
     moves = torch.zeros_like(theta)
     moves[3:6] = torch.maximum(high - bs, bs - low) ** 2
     moves[6:9] = unseen ** 2
-    return moves
+    return torch.nan_to_num(moves, nan=math.inf, posinf=math.inf)
 
 
 def far_surface_range(ranges: Tensor, quantile: float = 0.9) -> float:
