@@ -563,22 +563,29 @@ def test_images_of_two_sizes_get_a_camera_per_size_unless_one_is_asked_for(share
             ("per-size" if mode == "auto" else "per-image")
 
 
-def test_unrelated_images_fail_with_advice_and_leave_nothing(tmp_path):
-    import skimage.data
-
+def _failed_poses(tmp_path, frames: dict) -> tuple[str, Path]:
+    """Run the poses step on an ingest folder of ``frames`` (name -> uint8 RGB) that must
+    fail: its message and the output folder it must not leave."""
     ingest = tmp_path / "ingest"
     for folder in ("matching", "linear"):
         (ingest / folder).mkdir(parents=True)
-    for name in ("astronaut", "camera", "coffee", "chelsea", "rocket", "coins", "clock"):
-        image = getattr(skimage.data, name)()
-        image = np.stack([image] * 3, -1) if image.ndim == 2 else image[..., :3]
-        image = cv2.resize(image, (240, 180), interpolation=cv2.INTER_AREA)
-        for folder in ("matching", "linear"):
+        for name, image in frames.items():
             cv2.imwrite(str(ingest / folder / f"{name}.png"), image[..., ::-1])
     out = tmp_path / "results" / "poses"
     with pytest.raises(PipelineError) as failure:
         run_poses("--ingest", str(ingest), "--out", str(out), "--threads", THREADS)
-    message = str(failure.value)
+    return str(failure.value), out
+
+
+def test_unrelated_images_fail_with_advice_and_leave_nothing(tmp_path):
+    import skimage.data
+
+    frames = {}
+    for name in ("astronaut", "camera", "coffee", "chelsea", "rocket", "coins", "clock"):
+        image = getattr(skimage.data, name)()
+        image = np.stack([image] * 3, -1) if image.ndim == 2 else image[..., :3]
+        frames[name] = cv2.resize(image, (240, 180), interpolation=cv2.INTER_AREA)
+    message, out = _failed_poses(tmp_path, frames)
     assert "registered only 0 of 7 images" in message
     for advice in ("poses.max_features=16384", "poses.max_image_size", "poses.focal_px",
                    "poses.clahe=false"):
@@ -597,19 +604,11 @@ def test_photographs_from_one_place_fail_saying_the_camera_must_move(tmp_path):
     from it; the message says why instead of suggesting settings, after a single attempt."""
     import skimage.data
 
-    ingest = tmp_path / "ingest"
-    for folder in ("matching", "linear"):
-        (ingest / folder).mkdir(parents=True)
     scene = cv2.resize(skimage.data.coffee(), (240, 180), interpolation=cv2.INTER_AREA)
     rng = np.random.default_rng(0)
-    for i in range(8):
-        frame = np.clip(scene + rng.normal(0.0, 2.0, scene.shape), 0, 255).astype(np.uint8)
-        for folder in ("matching", "linear"):
-            cv2.imwrite(str(ingest / folder / f"timelapse_{i:03d}.png"), frame[..., ::-1])
-    out = tmp_path / "results" / "poses"
-    with pytest.raises(PipelineError) as failure:
-        run_poses("--ingest", str(ingest), "--out", str(out), "--threads", THREADS)
-    message = str(failure.value)
+    message, out = _failed_poses(tmp_path, {
+        f"timelapse_{i:03d}": np.clip(scene + rng.normal(0.0, 2.0, scene.shape), 0, 255
+                                      ).astype(np.uint8) for i in range(8)})
     assert "registered only 0 of 8 images: the photographs were taken from one place" in message
     assert "photographs from several positions" in message
     assert "poses.focal_px" not in message and "poses.max_features" not in message
@@ -619,21 +618,14 @@ def test_photographs_from_one_place_fail_saying_the_camera_must_move(tmp_path):
 
 def test_views_of_open_water_fail_saying_they_hold_no_features(tmp_path):
     # a diver's frames of blue water: a vertical gradient and sensor noise, nothing to match
-    ingest = tmp_path / "ingest"
     rng = np.random.default_rng(0)
     rows = np.linspace(0.0, 1.0, 180)[:, None, None]
-    for folder in ("matching", "linear"):
-        (ingest / folder).mkdir(parents=True)
+    frames = {}
     for i in range(12):
         water = (np.array([0.05, 0.3, 0.45]) + 0.2 * rows) * np.ones((1, 240, 1))
         water = np.clip(water + rng.normal(0.0, 0.01, water.shape), 0.0, 1.0)
-        for folder in ("matching", "linear"):
-            cv2.imwrite(str(ingest / folder / f"GOPR{i:04d}.png"),
-                        (water[..., ::-1] * 255).astype(np.uint8))
-    out = tmp_path / "results" / "poses"
-    with pytest.raises(PipelineError) as failure:
-        run_poses("--ingest", str(ingest), "--out", str(out), "--threads", THREADS)
-    message = str(failure.value)
+        frames[f"GOPR{i:04d}"] = (water * 255).astype(np.uint8)
+    message, _ = _failed_poses(tmp_path, frames)
     assert "registered only 0 of 12 images" in message
     assert "No image shares 15 verified feature matches with any other image" in message
     assert "open water" in message and "GOPR0000" in message
