@@ -71,8 +71,9 @@ UNCERTAINTY_METHOD = (
     "statistical half-width plus a systematic one from how much parts of the data (near/far, "
     "the two sides of the scene, without open water, without the dark-pixel bound, other voxel "
     "groupings, noisier depth) disagree and how far the surfaces pull c_med from the open "
-    "water's colour; the interval is widened by the trained value's distance to that fit. A "
-    "parameter whose interval reaches more than 25% of its value either side is not "
+    "water's colour, or, with no open water in view, how much of the veiling light lies beyond "
+    "the farthest surfaces; the interval is widened by the trained value's distance to that "
+    "fit. A parameter whose interval reaches more than 25% of its value either side is not "
     "determined by the views")
 
 
