@@ -14,11 +14,14 @@ import pandas as pd
 import pytest
 
 from seathru.cli import main
+from seathru.eval.report import camera_cells
 from seathru.io.cameras import read_cameras
 from seathru.io.images import read_image
 from seathru.io.model import read_training_record, save_model
+from seathru.io.pose_report import write_pose_report
 from seathru.io.warnings import step_warning, write_warnings
 from seathru.steps.render import render_dataset
+from tests.test_io_pose_report import colmap_report
 from tests.test_render_evaluate import RENDER_SETTINGS, make_fake_dataset
 
 # what the train step recorded of each run: selection.json's capacity and model.pt
@@ -65,7 +68,10 @@ def report(tmp_path_factory):
         (logs / dataset / "train.log").write_text(
             "step 100 loss 0.005\n" + ("trained 100 steps in 42 s (stopped by time; 2.4 steps/s)"
                                        "\n" if dataset == "real" else ""))
-    # a camera model kept with poses.on_unconfirmed=warn
+    # a camera model kept with poses.on_unconfirmed=warn, COLMAP started from the EXIF focal
+    write_pose_report(results / "real" / "poses" / "report.json", {
+        **colmap_report(), "gate_passed": False, "initial_focal_px": 249.6,
+        "initial_focal_source": "manifest 35 mm equivalent focal length"})
     write_warnings(results / "real" / "poses" / "warnings.json", [step_warning(
         "poses", "unconfirmed_poses", "the camera model was not confirmed: attempts 1 and 2 "
         "disagree on the poses", attempt=2)])
@@ -150,6 +156,17 @@ def test_warnings_reach_the_needs_a_look_column(report):
     assert "attempts 1 and 2 disagree on the poses" in page
     assert "stopped at its time budget" in page   # real's train.log: stopped by time
     assert "reached train.steps" not in page.split("<b>real</b><ul>")[1].split("</ul>")[0]
+
+
+def test_where_the_cameras_came_from_reaches_the_table(report):
+    table = pd.read_csv(report["out"] / "summary.csv").set_index("dataset")
+    assert table.loc["real", "cameras"] == "COLMAP 3/3, 0.40 px, not confirmed"
+    assert table.loc["real", "focal_start"] == "manifest 35 mm equivalent focal length"
+    assert pd.isna(table.loc["sim", "cameras"]) and pd.isna(table.loc["broken", "cameras"])
+    assert "COLMAP 3/3, 0.40 px, not confirmed" in (report["out"] / "summary.html").read_text()
+    assert camera_cells({**colmap_report(), "initial_focal_px": None})["focal_start"] == \
+        "none (COLMAP's own estimate)"
+    assert camera_cells({"source": "llff", "frames": 20})["cameras"] == "llff (20 frames)"
 
 
 def test_capacity_level_passes_and_reasons_reach_the_report(report):

@@ -52,7 +52,7 @@ CHART_COLUMNS = (*(f"chart_de00_{label}" for _, label in CHART_IMAGES),
                  *(f"chart_grey_deg_{label}" for _, label in CHART_IMAGES))
 TABLE_COLUMNS = (
     "dataset", "source", "options", "status", "warnings", "needs_a_look", "failed_step",
-    "error", "views",
+    "error", "views", "cameras", "focal_start",
     "psnr_linear", "ssim_linear", "psnr_srgb", "ssim_srgb", "lpips",
     "restored_psnr_linear", "restored_psnr_linear_covered", "restored_ssim_linear",
     "photo_restored_psnr_linear", "reprojected_restored_psnr_linear",
@@ -113,6 +113,7 @@ class DatasetRecord:
     # model.pt's training record (steps, elapsed_s, stopped_by, ...) with its config's
     # batch_rays and preset (seathru.io.model.read_training_record)
     training_run: dict | None = None
+    poses: dict | None = None           # the poses step's report.json (seathru.io.pose_report)
 
 
 def diagnose_failure(logs: Sequence[StepLog], step_order: Sequence[str]) -> tuple[str | None, str]:
@@ -602,6 +603,34 @@ def followed_share(inputs: Sequence[tuple], rendered: Sequence[tuple]) -> float 
     return moved / total if total > 0 else None
 
 
+def camera_cells(poses: dict | None) -> dict[str, str | None]:
+    """``cameras``: where the cameras came from and how well (COLMAP's registered images, mean
+    reprojection error, whether an independent model confirmed them; or the reader and its
+    frames); ``focal_start``: what COLMAP's focal length started from (the photographs' EXIF,
+    the settings, or nothing: its own estimate). None without the poses step's report.
+
+    Example::
+
+        camera_cells({"source": "colmap", "registered": 24, "total": 24,
+                      "mean_reprojection_px": 0.25, "gate_passed": True,
+                      "initial_focal_px": 249.6,
+                      "initial_focal_source": "manifest 35 mm equivalent focal length"})
+        # {"cameras": "COLMAP 24/24, 0.25 px, confirmed",
+        #  "focal_start": "manifest 35 mm equivalent focal length"}
+    """
+    if not poses:
+        return {"cameras": None, "focal_start": None}
+    if poses.get("source") != "colmap":
+        return {"cameras": f"{poses.get('source')} ({poses.get('frames')} frames)",
+                "focal_start": None}
+    error = poses.get("mean_reprojection_px")
+    return {"cameras": f"COLMAP {poses.get('registered')}/{poses.get('total')}, "
+                       + (f"{error:.2f} px, " if error is not None else "")
+                       + ("confirmed" if poses.get("gate_passed") else "not confirmed"),
+            "focal_start": poses.get("initial_focal_source")
+            if poses.get("initial_focal_px") is not None else "none (COLMAP's own estimate)"}
+
+
 def _ordered_columns(columns: Sequence[str]) -> list[str]:
     """:data:`TABLE_COLUMNS` order, each protocol's columns right after ``lpips``."""
     protocol = [c for c in columns if c not in TABLE_COLUMNS]
@@ -621,6 +650,7 @@ def summary_table(records: Sequence[DatasetRecord]) -> pd.DataFrame:
                "failed_step": record.failed_step, "error": record.error}
         summary = record.summary
         row["views"] = summary.views if summary else None
+        row.update(camera_cells(record.poses))
         means = summary.means if summary else {}
         row.update({key: means[key] for key in TABLE_COLUMNS if key in means})
         row.update(protocol_cells(summary))

@@ -2,9 +2,10 @@
 
 For ``RESULTS/<dataset>/``: ``evaluate/summary.json``, ``metrics.csv`` and ``frontier.csv``,
 ``train/train_log.csv``, ``water.json`` and ``selection.json`` (the medium model and the
-capacity level chosen, and why; the copy in ``summary.json`` first), ``train/model.pt``'s
-training record (steps, rays per step, preset: ``seathru.io.model.read_training_record``), each
-step's ``warnings.json`` and the render step's display images ``render/test/<view>/*.png``;
+capacity level chosen, and why; the copy in ``summary.json`` first), ``poses/report.json``
+(where the cameras came from), ``train/model.pt``'s training record (steps, rays per step,
+preset: ``seathru.io.model.read_training_record``), each step's ``warnings.json`` and the
+render step's display images ``render/test/<view>/*.png``;
 ``LOGS/<dataset>/<step>.log`` for why a dataset without results failed. Everything lands in a
 :class:`seathru.eval.report.DatasetRecord`.
 """
@@ -25,6 +26,7 @@ from seathru.io.evaluation import read_metrics, read_summary, read_train_log
 from seathru.io.frontier import FRONTIER_NAME, read_frontier
 from seathru.io.images import read_image
 from seathru.io.jsonfile import read_json
+from seathru.io.pose_report import read_pose_report
 from seathru.io.warnings import read_dataset_warnings
 from seathru.io.water import read_water
 
@@ -71,6 +73,12 @@ def collect_record(row: pd.Series, results: Path, logs: Path | None, step_order:
         try:
             record.frontier = read_frontier(frontier_path)
         except PipelineError as exc:   # the frontier is left out, the dataset stays
+            log.warning("%s", exc)
+    poses_path = base / "poses" / "report.json"
+    if poses_path.is_file():
+        try:
+            record.poses = dict(read_pose_report(poses_path))
+        except PipelineError as exc:   # the cameras' columns are left empty, the dataset stays
             log.warning("%s", exc)
     record.train_log = read_train_log(base / "train" / "train_log.csv")
     water_path = base / "train" / "water.json"
