@@ -271,6 +271,7 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
     plan = plan_attempts(settings, retry, cross_check, global_mapping_available())
     runs: list[SfmRun] = []
     comparisons: dict[tuple[int, int], dict | None] = {}
+    shifts: dict[Path, float | None] = {}   # largest_pair_shift by matched database
     chosen: SfmRun | None = None
     with colmap_log_level(verbose):
         start = time.perf_counter()
@@ -287,7 +288,8 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
             attempt, model = runner.run(current, role)
             runs.append(SfmRun(current, attempt, model))
             if len(runs) == 1 and attempt.registered == 0 and runner.matched:
-                shift = largest_pair_shift(next(iter(runner.matched.values())))
+                first_db = next(iter(runner.matched.values()))
+                shifts[first_db] = shift = largest_pair_shift(first_db)
                 if shift is not None and shift < STILL_SHIFT:
                     log.warning("matched features move at most %.2f%% of the image diagonal "
                                 "between photographs: taken from one place, no retry",
@@ -305,7 +307,9 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
     # the exhaustive matcher's pairs, where it ran, are every pair
     databases = sorted(runner.matched.items(), key=lambda item: item[0][0] != "exhaustive")
     support = best_pair_inliers(databases[0][1], features) if databases else {}
-    shift = largest_pair_shift(databases[0][1]) if databases else None
+    if databases and databases[0][1] not in shifts:
+        shifts[databases[0][1]] = largest_pair_shift(databases[0][1])
+    shift = shifts[databases[0][1]] if databases else None
     if chosen is None or chosen.attempt.registered == 0:
         return SfmResult(None, None, runner.attempts, features, support, shift)
     return SfmResult(chosen.model, chosen.attempt, runner.attempts, features, support, shift)
