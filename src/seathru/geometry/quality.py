@@ -292,7 +292,7 @@ def unconfirmed_run(runs: list[SfmRun], matcher: str, cross_check: bool) -> SfmR
 FEW_IMAGES = 10
 
 #: Below this largest median shift of matched features between two photographs (a share of the
-#: image diagonal) the camera did not move: 0.01% on copies of one frame, 8-42% between the
+#: image diagonal) the camera did not move: 0.01% on copies of one frame, 18-42% between the
 #: frames of dives that registered (d3_reef, a simulated transect).
 STILL_SHIFT = 0.01
 
