@@ -29,7 +29,7 @@ from pathlib import Path
 
 import torch
 
-from machine import cpu_name, load_average
+from machine import footer, load_average
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "src"))
@@ -48,8 +48,7 @@ def assess(sim: Path, train: Path) -> dict:
     from seathru.nerf.water_uncertainty import (far_surface_range, interval_determined,
                                                 robust_halfwidths)
 
-    data, model, truth, trained, _, regrouped = model_surfaces(sim, train,
-                                                               _voxel_factors(train))
+    data, model, truth, trained, _, regrouped = model_surfaces(sim, train, regroup=True)
     row = {"model": sim.name, "truth": truth, "trained": trained}
     if isinstance(data, str):
         return {**row, "skipped": data}
@@ -113,13 +112,7 @@ def _with_bend(fit, used, spread, colour_max: float, balance: bool,
             for i, key in enumerate(KEYS)}
 
 
-def _voxel_factors(train: Path) -> tuple[float, ...]:
-    from seathru.io.model import load_model
-
-    return tuple(load_model(train / "model.pt").config.medium.interval_voxel_factors)
-
-
-def write(rows: list[dict], args, seconds: float) -> None:
+def write(rows: list[dict], args, load: str, started: float) -> None:
     done = [r for r in rows if "skipped" not in r]
     lines = ["# The veiling light beyond the farthest surfaces in water.json's intervals "
              "(`benchmarks/bench_unseen_veiling.py`)", "",
@@ -154,8 +147,7 @@ def write(rows: list[dict], args, seconds: float) -> None:
                   f"without, {b['off_flagged']} with, {c['off_flagged']} bent; of the "
                   f"{a['good']} within 5%, {a['good_flagged']} flagged without, "
                   f"{b['good_flagged']} with, {c['good_flagged']} bent."]
-    lines += ["", f"Machine: {cpu_name()}, 1 torch thread; load {load_average()}; "
-              f"{time.strftime('%Y-%m-%d')}; {seconds / 60:.1f} min in all.", ""]
+    lines += ["", footer(load, started) + " 1 torch thread.", ""]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines))
     args.out.with_suffix(".json").write_text(json.dumps(rows, indent=1))
@@ -169,14 +161,14 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    started = time.time()
+    started, load = time.time(), load_average()
     rows = []
     for train in sorted(args.work.glob("*/train_*")):
         if (train / "model.pt").exists() and (train.parent / "truth" / "water.json").exists():
             rows.append(assess(train.parent, train))
             print(rows[-1]["model"], rows[-1].get("skipped") or
                   {arm: rows[-1][arm]["held"] for arm in ARMS}, flush=True)
-    write(rows, args, time.time() - started)
+    write(rows, args, load, started)
 
 
 if __name__ == "__main__":

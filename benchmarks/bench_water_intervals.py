@@ -121,12 +121,13 @@ def trained_dive(sim: Path, train: Path):
     return model, cameras, frames, images, masks, water_masks, in_view
 
 
-def model_surfaces(sim: Path, train: Path, regroup: tuple[float, ...] = ()):
+def model_surfaces(sim: Path, train: Path, regroup: bool = False):
     """The surface data of a trained model as its final water assessment builds it (all
     training rays, not less the medium-selection hold-out; open water from the photographs
     where in view, and whether it looks below the horizon), its model and the truth (in
-    normalised units). Returns (data or reason, model, truth, trained water, scale, the same
-    pixels grouped at each of ``regroup`` times the refit voxel)."""
+    normalised units). Returns (data or reason, model, truth, trained water, scale, with
+    ``regroup`` the same pixels grouped at each of the model's
+    ``medium.interval_voxel_factors`` times the refit voxel, else [])."""
     from seathru.io.water import read_truth_water, read_water
     from seathru.nerf.rays import RayDataset
     from seathru.nerf.water_refit import below_horizon, refit_open_water_opacity
@@ -151,7 +152,7 @@ def model_surfaces(sim: Path, train: Path, regroup: tuple[float, ...] = ()):
                      config.medium.refit_opacity,
                      open_water_opacity=refit_open_water_opacity(config.medium, in_view, 1.0),
                      open_water=rays.open_water, below_horizon=below)
-        for factor in (1.0, *regroup)]
+        for factor in (1.0, *(config.medium.interval_voxel_factors if regroup else ()))]
     report = read_water(train / "water.json")
     truth = read_truth_water(sim / "truth" / "water.json").scaled(1 / report.scale).as_dict()
     return data, model, truth, report.normalised.as_dict(), report.scale, regrouped

@@ -250,9 +250,8 @@ def veiling_beyond_surfaces(theta: Tensor, ranges: Tensor, quantile: float = 0.9
         halfwidth_c_med = 1.96 * moves[6:9].sqrt()   # the allowance alone
     """
     theta = theta.double()
-    finite = ranges[torch.isfinite(ranges)].double()
-    far = float(torch.quantile(finite, quantile))
-    middle = float(finite.median())
+    far = far_surface_range(ranges, quantile)
+    middle = float(ranges[torch.isfinite(ranges)].double().median())
     bs, c_med = theta[3:6].clamp_min(0.0), theta[6:9]
     unseen = c_med * torch.exp(-bs * far)
     # backscatter at the median range over the veiling light, at the two ends of the move;
