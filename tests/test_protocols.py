@@ -65,7 +65,7 @@ def test_ingest_then_inverse_gives_the_stored_16bit_linear_image_back(codes, gai
 
 @hypothesis_settings(max_examples=60, deadline=None)
 @given(hnp.arrays(np.float64, (3, 3, 3), elements=st.floats(0.0, 1.0)), GAINS, FACTORS,
-       st.sampled_from(["srgb", "linear"]))
+       st.sampled_from(["srgb", "linear", "gamma 1.8", "gamma 2.2"]))
 def test_inverse_of_the_float64_forward_map_is_the_identity(stored, gains, factor, encoding):
     linear = ingest_linear(stored, gains, factor, encoding)
     np.testing.assert_allclose(stored_values(linear, gains, factor, encoding), stored,

@@ -42,7 +42,8 @@ from seathru.io.manifest import read_manifest
 from seathru.io.renders import PHOTOS_DIR, RESTORED_PHOTO
 from seathru.io.stored_views import (StoredView, ingest_folder_of, read_stored_codes,
                                      read_stored_views, source_cameras, stored_points_on_frame)
-from seathru.radiometry.colour import linear_to_srgb, srgb_to_linear
+from seathru.radiometry import stored_encoding
+from seathru.radiometry.colour import linear_to_srgb
 
 log = logging.getLogger(__name__)
 
@@ -100,7 +101,7 @@ def stored_linear(view: StoredView) -> np.ndarray:
     codes = read_stored_codes(view)
     values = codes.astype(np.float64) / (np.iinfo(codes.dtype).max
                                          if np.issubdtype(codes.dtype, np.integer) else 1.0)
-    return srgb_to_linear(values) if view.encoding == "srgb" else values
+    return stored_encoding.decode(values, view.encoding)
 
 
 def detect_chart(views: dict[str, StoredView], order: list[str]) -> dict[str, Any] | None:
@@ -194,7 +195,7 @@ def evaluate_colour_chart(cameras: CameraSet, renders: Path, annotation: Path | 
 
 def _stored_values_of(view: StoredView, photo: np.ndarray) -> np.ndarray:
     """The stored values in [0, 1] of a decoded photo (for the clipping test)."""
-    return linear_to_srgb(photo) if view.encoding == "srgb" else photo
+    return stored_encoding.encode(photo, view.encoding)
 
 
 def _restored_photo(cameras, renders, name, view, corners, spec, use) -> dict:

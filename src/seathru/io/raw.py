@@ -38,9 +38,10 @@ from typing import Any, Literal, get_args
 import cv2
 import numpy as np
 import tifffile
+from PIL import Image
 
-from seathru.radiometry import linearise
-from seathru.radiometry.colour import srgb_to_linear
+from seathru.io import icc
+from seathru.radiometry import linearise, stored_encoding
 
 # exifread logs "File format not recognized" at WARNING for every file it cannot parse; a
 # missing EXIF block is an expected, recorded case here, not a warning.
@@ -51,10 +52,13 @@ RAW_EXTENSIONS = frozenset(
     ".3fr .ari .arw .bay .cap .cr2 .cr3 .crw .dcr .dcs .dng .drf .eip .erf .fff .gpr .iiq .k25 "
     ".kdc .mdc .mef .mos .mrw .nef .nrw .obm .orf .pef .ptx .pxn .r3d .raf .raw .rwl .rw2 .rwz "
     ".sr2 .srf .srw .sti .x3f".split())
-#: Encoded image extensions (kind decided by bit depth for PNG and TIFF).
+#: Encoded image extensions (kind decided by the recorded curve or the bit depth for PNG/TIFF).
 ENCODED_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff"})
-#: What a file holds: camera RAW, linear 16-bit/float, or sRGB-encoded 8-bit.
+#: What a file holds: camera RAW, linear values, or values encoded by a display curve (sRGB's,
+#: or the power curve the file's colour profile records: ``srgb`` names them all).
 ImageKind = Literal["raw", "linear", "srgb"]
+#: TIFF tag holding an embedded ICC profile (InterColorProfile).
+TIFF_ICC_TAG = 34675
 #: The kinds in order of preference when a folder mixes them (RAW+JPEG pairs: raw wins).
 KINDS: tuple[str, ...] = get_args(ImageKind)
 
@@ -300,24 +304,79 @@ def _png_bit_depth(path: Path) -> int | None:
     return struct.unpack("B", header[24:25])[0]
 
 
+@dataclass(frozen=True)
+class RecordedCurve:
+    """The curve an encoded file records for its values: ``encoding`` (``linear``, ``srgb``,
+    ``gamma <g>``; None where the curve is none of them) and ``source`` (what recorded it)."""
+
+    encoding: str | None
+    source: str
+
+
+def _profile_curve(profile: bytes | None) -> RecordedCurve | None:
+    if not profile:
+        return None
+    name = icc.description(profile)
+    source = f"ICC profile {name!r}" if name else "ICC profile"
+    curves = icc.channel_curves(profile)
+    return RecordedCurve(None if curves is None else stored_encoding.encoding_of_curves(curves),
+                         source)
+
+
+def recorded_curve(path: str | Path) -> RecordedCurve | None:
+    """The curve from stored values to linear light that a PNG, TIFF or JPEG records: its
+    embedded ICC profile's tone curves (``seathru.io.icc``), else a PNG's ``sRGB`` or ``gAMA``
+    chunk; None where it records none (or cannot be read: decoding reports that).
+
+    Example:
+        >>> recorded_curve("images_wb/0001.png")  # doctest: +SKIP
+        RecordedCurve(encoding='gamma 1.8', source="ICC profile 'ProPhoto RGB'")
+    """
+    path = Path(path)
+    try:
+        if path.suffix.lower() in (".tif", ".tiff"):
+            with tifffile.TiffFile(path) as tif:
+                tag = tif.pages[0].tags.get(TIFF_ICC_TAG)
+                return _profile_curve(None if tag is None else bytes(tag.value))
+        with Image.open(path) as image:
+            info = dict(image.info)
+    except Exception:  # noqa: BLE001 - an unreadable file is reported when decoding
+        return None
+    from_profile = _profile_curve(info.get("icc_profile"))
+    if from_profile is not None or path.suffix.lower() != ".png":
+        return from_profile
+    if "srgb" in info:
+        return RecordedCurve("srgb", "PNG sRGB chunk")
+    if info.get("gamma"):
+        x = np.linspace(0.0, 1.0, icc.CURVE_SAMPLES)
+        curve = x ** (1.0 / float(info["gamma"]))
+        return RecordedCurve(stored_encoding.encoding_of_curves(curve[None]),
+                             f"PNG gAMA {float(info['gamma']):g}")
+    return None
+
+
 def detect_kind(path: str | Path) -> str | None:
-    """``raw``, ``linear`` (16-bit or float PNG/TIFF) or ``srgb`` (JPEG, 8-bit PNG/TIFF) from the
-    extension and stored bit depth; None for files that are not images by extension."""
+    """``raw``, ``linear`` or ``srgb`` (display-encoded) from the extension and, for PNG and
+    TIFF, the curve the file records (:func:`recorded_curve`), else the stored bit depth
+    (16-bit or float: linear; 8-bit: sRGB); None for files that are not images by extension."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix in RAW_EXTENSIONS:
         return "raw"
     if suffix in (".jpg", ".jpeg"):
         return "srgb"
+    if suffix not in (".png", ".tif", ".tiff"):
+        return None
+    recorded = recorded_curve(path)
+    if recorded is not None and recorded.encoding is not None:
+        return "linear" if recorded.encoding == "linear" else "srgb"
     try:
         if suffix == ".png":
             return "linear" if (_png_bit_depth(path) or 8) > 8 else "srgb"
-        if suffix in (".tif", ".tiff"):
-            with tifffile.TiffFile(path) as tif:
-                return "srgb" if tif.pages[0].dtype == np.uint8 else "linear"
+        with tifffile.TiffFile(path) as tif:
+            return "srgb" if tif.pages[0].dtype == np.uint8 else "linear"
     except Exception:  # noqa: BLE001 - an unreadable header is reported when decoding
         return "srgb" if suffix == ".png" else "linear"
-    return None
 
 
 def jpeg_cut_short(data: bytes) -> bool:
@@ -393,10 +452,41 @@ def _read_array(path: Path) -> np.ndarray:
     return array[..., :3]
 
 
+def _display_encoding(path: Path) -> tuple[str, str, list[str]]:
+    """The curve a display-encoded file is decoded by: the one it records where that is a
+    display curve, else sRGB's; with where that came from and any warning."""
+    recorded = recorded_curve(path)
+    if recorded is None:
+        return "srgb", "no curve recorded", []
+    if recorded.encoding is None:
+        return "srgb", f"in place of the {recorded.source}'s curve", [
+            f"its {recorded.source} records a curve that is none of linear, sRGB or a power "
+            f"curve; decoded with sRGB's (set ingest.kind=linear if the values are linear)"]
+    if recorded.encoding == "linear":
+        return "srgb", "ingest.kind=srgb", [
+            f"its {recorded.source} records linear values, decoded with sRGB's curve as "
+            f"ingest.kind=srgb asks"]
+    return recorded.encoding, recorded.source, []
+
+
+def _linear_source(path: Path) -> tuple[str, list[str]]:
+    recorded = recorded_curve(path)
+    if recorded is None:
+        return "no curve recorded", []
+    if recorded.encoding == "linear":
+        return recorded.source, []
+    named = f" ({recorded.encoding})" if recorded.encoding else ""
+    return "ingest.kind=linear", [f"its {recorded.source} records a display curve{named}; "
+                                  f"read as linear values as ingest.kind=linear asks"]
+
+
 def read_encoded(path: str | Path, kind: str) -> DecodedImage:
-    """Read a JPEG/PNG/TIFF as linear RGB. ``kind='srgb'``: inverse sRGB transfer of the stored
-    values; ``kind='linear'``: the stored values as they are. Integers map to [0, 1] by their top
-    code; the EXIF orientation is applied."""
+    """Read a JPEG/PNG/TIFF as linear RGB. ``kind='srgb'`` (display-encoded): the stored values
+    through the inverse of the curve the file records (an ICC profile's gamma 1.8, say), else of
+    sRGB's; ``kind='linear'``: the stored values as they are. Integers map to [0, 1] by their top
+    code; the EXIF orientation is applied. The manifest's ``decoder.transfer`` names the curve
+    (``seathru.radiometry.stored_encoding``) and ``decoder.transfer_source`` where it came
+    from."""
     if kind not in ("linear", "srgb"):
         raise ValueError(f"kind must be 'linear' or 'srgb', not {kind!r}")
     path = Path(path)
@@ -410,14 +500,15 @@ def read_encoded(path: str | Path, kind: str) -> DecodedImage:
     reason = linearise.invalid_image_reason(values)
     if reason:
         raise DecodeError(reason)
-    if kind == "srgb":
-        values = srgb_to_linear(values).astype(np.float32)
+    transfer, source, warnings = (_display_encoding(path) if kind == "srgb"
+                                  else ("linear", *_linear_source(path)))
+    values = np.asarray(stored_encoding.decode(values, transfer), dtype=np.float32)
     saturated, black_clipped = linearise.encoded_clipping(codes)
     exif, _ = read_exif(path)
     flip = linearise.exif_orientation_to_flip(exif.orientation)
     metadata = {"bit_depth": int(codes.dtype.itemsize * 8), "sample_type": str(codes.dtype),
-                "flip": flip}
+                "flip": flip, "transfer": transfer, "transfer_source": source}
     return DecodedImage(
         image=linearise.orient(values, flip), saturated=linearise.orient(saturated, flip),
         black_clipped=linearise.orient(black_clipped, flip), kind=kind, exposure=exif,
-        metadata=metadata)
+        metadata=metadata, warnings=warnings)

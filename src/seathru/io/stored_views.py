@@ -45,8 +45,9 @@ INTRINSICS_RTOL = 1e-3
 class StoredView:
     """One image of the dataset as stored.
 
-    ``path``: the stored file (for RAW sources the ingest's linear TIFF); ``encoding``: ``srgb``
-    or ``linear``; ``gains`` ``(3,)`` and ``exposure_factor``: what ingest multiplied by;
+    ``path``: the stored file (for RAW sources the ingest's linear TIFF); ``encoding``: the curve
+    ingest decoded it by (``seathru.radiometry.stored_encoding``: ``srgb``, ``linear``,
+    ``gamma <g>``); ``gains`` ``(3,)`` and ``exposure_factor``: what ingest multiplied by;
     ``flip``: the orientation ingest applied (LibRaw flip code); ``size``: ``(width, height)``
     after orientation; ``file_name``: the stored file's name (the protocol sorts these; a
     video's frame: its name);
@@ -92,7 +93,9 @@ def read_stored_views(ingest: Path) -> dict[str, StoredView]:
                                                         (1.0, 1.0, 1.0), 1.0, 0)
             size = (int(image["width"]), int(image["height"]))
         else:
-            path, encoding, view_gains = Path(image["source_path"]), image["kind"], gains
+            # manifests written before ingest recorded the curve: the kind's own
+            encoding = image["decoder"].get("transfer", image["kind"])
+            path, view_gains = Path(image["source_path"]), gains
             factor, flip = float(image["exposure_factor"]), int(image["decoder"].get("flip", 0))
             size = (int(image["source_size"][0]), int(image["source_size"][1]))
         video_frame = image.get("video_frame")

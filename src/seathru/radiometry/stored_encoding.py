@@ -7,6 +7,8 @@ radiance in two pixel-wise steps (``seathru.io.raw.read_encoded`` then
     linear = decode(stored) * gains * exposure_factor
     decode = inverse sRGB transfer   (encoding 'srgb': JPEG, 8-bit PNG/TIFF)
            | identity                (encoding 'linear': 16-bit/float PNG/TIFF, e.g. images_wb/)
+           | stored ** g             (encoding 'gamma <g>': a profile's pure power curve,
+                                      ProPhoto RGB's 1.8, Adobe RGB's 2.2)
 
 with ``stored`` the file's values divided by their top code (255, 65535), ``gains`` the
 dataset's white balance (``manifest.json`` ``white_balance.gains``) and ``exposure_factor`` the
@@ -16,19 +18,25 @@ source file stores, so it can be compared with the stored image as it is on disk
 balance or exposure change applied to the ground truth). RAW files have no stored rendition to
 go back to: their "stored" image is the ingest output itself (encoding 'linear', unit gains).
 
+The encoding is the file's own where it records one (an ICC profile, a PNG ``sRGB`` or ``gAMA``
+chunk: :func:`encoding_of_curves` names the curve), else the one its bit depth implies.
+
 Pure numpy; no file I/O.
 """
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 
 from seathru.radiometry.colour import linear_to_srgb, srgb_to_linear
 
-Encoding = Literal["srgb", "linear"]
-ENCODINGS: tuple[str, ...] = ("srgb", "linear")
+#: ``srgb``, ``linear`` or ``gamma <g>`` (a pure power curve, e.g. ``gamma 1.8``).
+Encoding = str
+ENCODINGS: tuple[str, ...] = ("srgb", "linear", "gamma <g>")
+#: How far (in linear values of [0, 1]) a recorded curve may lie from the one it is named as:
+#: a quarter of an 8-bit code at the top of the range, well inside what an exporter's table
+#: (1024 or 4096 samples of 16 bits) keeps of the curve it samples.
+CURVE_TOLERANCE = 1e-3
 
 
 def _gain(gains, exposure_factor: float) -> np.ndarray:
@@ -38,9 +46,75 @@ def _gain(gains, exposure_factor: float) -> np.ndarray:
     return gain
 
 
-def _check(encoding: str) -> None:
-    if encoding not in ENCODINGS:
-        raise ValueError(f"encoding must be one of {ENCODINGS}, not {encoding!r}")
+def gamma_of(encoding: str) -> float | None:
+    """The exponent of a ``gamma <g>`` encoding; None for ``srgb`` and ``linear``.
+
+    Raises:
+        ValueError: not one of the encodings (:data:`ENCODINGS`).
+    """
+    if encoding in ("srgb", "linear"):
+        return None
+    name, _, value = encoding.partition(" ")
+    try:
+        gamma = float(value)
+    except ValueError:
+        gamma = float("nan")
+    if name != "gamma" or not (0.1 <= gamma <= 10.0):
+        raise ValueError(f"encoding must be one of {ENCODINGS} (g in 0.1-10), not {encoding!r}")
+    return gamma
+
+
+def decode(stored, encoding: Encoding):
+    """Stored values in [0, 1] to linear light by the encoding's curve (numpy or torch)."""
+    gamma = gamma_of(encoding)
+    if encoding == "srgb":
+        return srgb_to_linear(stored)
+    return stored if gamma is None else stored.clip(0.0, None) ** gamma
+
+
+def encode(linear, encoding: Encoding):
+    """The inverse of :func:`decode` on [0, 1] (values outside are clipped there)."""
+    gamma = gamma_of(encoding)
+    if encoding == "srgb":
+        return linear_to_srgb(linear)
+    linear = linear.clip(0.0, 1.0)
+    return linear if gamma is None else linear ** (1.0 / gamma)
+
+
+def encoding_of_curves(curves: np.ndarray) -> Encoding | None:
+    """The encoding whose curve the recorded ones follow (every channel), or None.
+
+    Args:
+        curves: ``(C, N)`` linear light at stored values ``linspace(0, 1, N)`` per channel
+            (an ICC profile's tone curves: ``seathru.io.icc.channel_curves``).
+
+    Returns:
+        ``linear``, ``srgb`` or ``gamma <g>`` (g to two decimals) where every channel lies within
+        :data:`CURVE_TOLERANCE` of it; None for any other curve (Rec. 709's, a camera's log
+        curve, channels that differ).
+
+    Example:
+        >>> x = np.linspace(0.0, 1.0, 256)
+        >>> encoding_of_curves(np.stack([x ** 1.8] * 3)), encoding_of_curves(np.stack([x] * 3))
+        ('gamma 1.8', 'linear')
+    """
+    curves = np.asarray(curves, dtype=np.float64)
+    x = np.linspace(0.0, 1.0, curves.shape[-1])
+
+    def follows(reference: np.ndarray) -> bool:
+        return bool(np.max(np.abs(curves - reference)) <= CURVE_TOLERANCE)
+
+    if follows(x):
+        return "linear"
+    if follows(srgb_to_linear(x)):
+        return "srgb"
+    middle = (x > 0.2) & (x < 0.8) & np.all(curves > 0, axis=0)
+    if not middle.any():
+        return None
+    gamma = round(float(np.median(np.log(curves[:, middle]) / np.log(x[middle]))), 2)
+    if 0.1 <= gamma <= 10.0 and follows(x ** gamma):
+        return "linear" if gamma == 1.0 else f"gamma {gamma:g}"
+    return None
 
 
 def ingest_linear(stored: np.ndarray, gains, exposure_factor: float,
@@ -51,15 +125,12 @@ def ingest_linear(stored: np.ndarray, gains, exposure_factor: float,
         stored: ``(H, W, 3)`` stored values in [0, 1] (file codes / top code).
         gains: ``(3,)`` white balance gains of the dataset.
         exposure_factor: the image's exposure normalisation factor.
-        encoding: ``srgb`` or ``linear``, how the file encodes radiance.
+        encoding: how the file encodes radiance (:data:`Encoding`).
 
     Returns:
         ``(H, W, 3)`` linear radiance.
     """
-    _check(encoding)
-    values = np.asarray(stored, dtype=np.float64)
-    decoded = srgb_to_linear(values) if encoding == "srgb" else values
-    return decoded * _gain(gains, exposure_factor)
+    return decode(np.asarray(stored, dtype=np.float64), encoding) * _gain(gains, exposure_factor)
 
 
 def stored_values(linear: np.ndarray, gains, exposure_factor: float,
@@ -67,7 +138,7 @@ def stored_values(linear: np.ndarray, gains, exposure_factor: float,
     """The inverse of :func:`ingest_linear`: linear radiance back to stored values, float64.
 
     Values outside what the file can hold are clipped to [0, 1] (the sRGB transfer is defined
-    there only), as an 8-bit file would store them.
+    there only), as a file would store them.
 
     Args:
         linear: ``(H, W, 3)`` linear radiance on the ingest scale (e.g. a render).
@@ -83,7 +154,6 @@ def stored_values(linear: np.ndarray, gains, exposure_factor: float,
         >>> bool(np.allclose(stored_values(linear, [1.2, 1.0, 2.0], 0.8, "srgb"), stored))
         True
     """
-    _check(encoding)
+    gamma_of(encoding)
     values = np.asarray(linear, dtype=np.float64) / _gain(gains, exposure_factor)
-    values = np.clip(np.nan_to_num(values, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
-    return linear_to_srgb(values) if encoding == "srgb" else values
+    return encode(np.nan_to_num(values, nan=0.0, posinf=1.0, neginf=0.0), encoding)

@@ -7,14 +7,13 @@ every ``--video-interval`` seconds (``seathru.io.video``). Writes, in ``--out`` 
 linear images, their masks, 8-bit copies for matching, ``manifest.json`` (the layout and format:
 ``seathru.io.manifest``) and ``warnings.json`` (rejected files, missing frames, clipped images).
 
-Kinds (``raw``: demosaiced only (LINEAR), in the camera's raw colour space; ``linear``;
-``srgb``; ``auto``: RAW wins over linear over sRGB): ``seathru.io.image_folder``. Exposure
-(k_i = median(E) / E_i, E = t * ISO / N^2 from EXIF) and white balance (--wb, percentile: the
-SeaThru-NeRF recipe): ``seathru.radiometry.dataset_transform``. Masks: clipped pixels
-(``seathru.radiometry.linearise``) grown by --mask-dilation, or a layout's own.
-
-Unusable files are rejected with a reason, the rest go on (fewer than --min-images: the step
-fails); decoded in --workers spawned processes (LibRaw's OpenMP is not fork-safe).
+Kinds (``raw``: demosaiced only (LINEAR), raw colour; ``linear``; ``srgb``: display-encoded,
+decoded by the curve the file's ICC profile records, else sRGB's; ``auto``: RAW wins over linear
+over sRGB): ``seathru.io.image_folder``. Exposure (k_i = median(E) / E_i, E = t * ISO / N^2 from
+EXIF) and white balance (--wb, percentile: the SeaThru-NeRF recipe):
+``seathru.radiometry.dataset_transform``. Masks: clipped pixels (``seathru.radiometry.linearise``)
+grown by --mask-dilation, or a layout's own. Unusable files are rejected with a reason, the rest
+go on (fewer than --min-images: the step fails); decoded in --workers spawned processes.
 """
 
 from __future__ import annotations
@@ -33,7 +32,7 @@ from seathru.io.decode_pool import (CRASHED, DecodeTask, FinishTask, WorkerPool,
                                     finish_one)
 from seathru.io.dataset_readers import LAYOUTS
 from seathru.io.image_folder import InputImages, find_inputs
-from seathru.io.manifest import build_manifest, ingest_warnings, write_manifest
+from seathru.io.manifest import build_manifest, ingest_warnings, transfer_summary, write_manifest
 from seathru.io.raw import Demosaic, RawSettings
 from seathru.io.video import staged_video_frames
 from seathru.io.warnings import write_warnings
@@ -50,7 +49,8 @@ class Settings:
     """Decoding, exposure, white balance and masks of the ingest step."""
 
     kind: Literal["auto", "raw", "linear", "srgb"] = setting(
-        "auto", help="input kind (auto: by extension and bit depth)")
+        "auto", help="input kind (auto: by extension, then the curve a PNG/TIFF records, "
+                     "then its bit depth; srgb: display-encoded)")
     colour: Literal["raw", "srgb"] = setting(
         "raw", help="colour space of RAW output: the camera's raw space (as SeaThru-NeRF) or "
                     "linear sRGB via LibRaw's camera matrix")
@@ -73,8 +73,7 @@ class Settings:
     downscale: list[int] = setting(
         default_factory=list, help="factors N for linear_N/ and masks_N/ (e.g. 2 4 8)")
     min_images: int = setting(3, help="fail if fewer usable images remain")
-    stats_pixels: int = setting(
-        100_000, help="pixels sampled per image for dataset statistics")
+    stats_pixels: int = setting(100_000, help="pixels sampled per image for dataset statistics")
     images: str = setting(
         "auto", help="image folder: auto (llff: images_wb; else the path or its one image "
                      "subfolder), a name (images_4, DCIM/100GOPRO) or all (subfolders too)")
@@ -167,4 +166,5 @@ def _decode(args: argparse.Namespace, cfg: Settings, found: InputImages) -> None
         write_manifest(work / "manifest.json", manifest)
         write_warnings(work / "warnings.json", ingest_warnings(manifest, cfg.warn_clipped_share),
                        LOG)
-    LOG.info("ingest: %d images written to %s, %d rejected", len(decoded), out, len(rejected))
+    LOG.info("ingest: %d images written to %s, %d rejected; stored values decoded by %s",
+             len(decoded), out, len(rejected), transfer_summary(manifest))
