@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from scipy import ndimage
 from skimage.transform import downscale_local_mean
 
-from seathru.radiometry import linearise
+from seathru.radiometry import linearise, stored_encoding
 from seathru.errors import PipelineError
 from seathru.io import raw as rawio
 from seathru.io.dataset_readers import frame_names, layout_images, read_source_mask
@@ -990,3 +990,85 @@ def test_an_input_that_is_no_folder_says_what_it_is(tmp_path, name, expected):
         argv = ["--input", given, "--out", tmp_path / "out"]
         with pytest.raises(PipelineError, match=expected):
             run_ingest(*argv, *(["--layout", layout] if layout else []))
+
+
+# ------------------------------------------------------------------- HEIC, WebP, what is not read
+
+HEIF_FIXTURES = Path(__file__).parent / "fixtures" / "heif"
+
+
+def _srgb_reference(values: np.ndarray) -> np.ndarray:
+    """:func:`_srgb_decode_reference` of values in [0, 1]."""
+    return _srgb_decode_reference(np.asarray(values, np.float64) * 255.0)
+
+
+def _fixture_pattern(width: int, height: int, top: int) -> np.ndarray:
+    """tests/fixtures/heif/make_fixtures.py's pattern: a grey ramp, a red block top-left."""
+    image = np.round(np.linspace(0.2, 0.8, width)[None, :, None] * np.ones((height, 1, 3)) * top)
+    image[:8, :8] = (0.9 * top, 0.1 * top, 0.1 * top)
+    return image
+
+
+def test_a_heic_photograph_decodes_turned_by_its_container_with_its_exposure():
+    decoded = rawio.read_encoded(HEIF_FIXTURES / "rotated.heic", "srgb")
+    # stored 48 wide, 32 high with EXIF orientation 6: libheif turns it 90 degrees clockwise,
+    # once (the EXIF orientation is not applied on top)
+    assert decoded.image.shape == (48, 32, 3) and decoded.metadata["flip"] == 0
+    turned = np.rot90(_fixture_pattern(48, 32, 255), k=-1) / 255
+    np.testing.assert_allclose(decoded.image, _srgb_reference(turned), atol=0.012)
+    assert decoded.image[2, -2, 0] > 5 * decoded.image[2, -2, 1]     # the red block, top-right
+    assert decoded.exposure.orientation == 6
+    assert (decoded.exposure.exposure_time, decoded.exposure.iso,
+            decoded.exposure.f_number) == pytest.approx((1 / 125, 400, 5.6))
+    assert decoded.metadata["transfer"] == "srgb"
+
+
+def test_a_ten_bit_heic_keeps_its_depth():
+    decoded = rawio.read_encoded(HEIF_FIXTURES / "ten_bit.heic", "srgb")
+    assert decoded.metadata["bit_depth"] == 16 and decoded.image.shape == (24, 32, 3)
+    expected = _srgb_reference(_fixture_pattern(32, 24, 1023) / 1023)
+    np.testing.assert_allclose(decoded.image, expected, atol=2e-3)
+    stored = stored_encoding.encode(decoded.image.astype(np.float64), "srgb")
+    assert np.abs(stored * 1023 - np.round(stored * 1023)).max() < 0.02   # on the 10-bit grid
+    assert np.abs(stored * 255 - np.round(stored * 255)).max() > 0.25      # not on an 8-bit one
+
+
+def test_a_folder_of_heic_and_webp_photographs_is_ingested(tmp_path):
+    folder = tmp_path / "phone"
+    folder.mkdir()
+    for index in range(3):
+        (folder / f"IMG_{index:04d}.HEIC").write_bytes(
+            (HEIF_FIXTURES / ("rotated.heic" if index else "ten_bit.heic")).read_bytes()
+            + bytes(index))   # distinct files: a byte-for-byte copy is left out
+        cv2.imwrite(str(folder / f"IMG_{index:04d}_edit.webp"), _ramp(value=40 + index),
+                    [cv2.IMWRITE_WEBP_QUALITY, 101])
+    manifest = run_ingest("--input", folder, "--out", tmp_path / "out", "--workers", 1,
+                          "--wb", "none")
+    by_name = {image["name"]: image for image in manifest["images"]}
+    assert len(by_name) == 6 and manifest["input"]["kind"] == "srgb"
+    assert by_name["IMG_0001"]["exposure_time"] == pytest.approx(1 / 125)
+    assert (by_name["IMG_0001"]["width"], by_name["IMG_0001"]["height"]) == (32, 48)
+    webp = tifffile.imread(tmp_path / "out" / by_name["IMG_0002_edit"]["linear"])
+    np.testing.assert_allclose(webp, _srgb_reference(_ramp(value=42) / 255.0)
+                               * by_name["IMG_0002_edit"]["exposure_factor"], rtol=1e-5)
+
+
+def test_a_damaged_heic_is_refused_with_a_reason(tmp_path):
+    path = tmp_path / "IMG_0001.HEIC"
+    path.write_bytes(_textured_jpeg())           # a JPEG under a HEIC name
+    with pytest.raises(rawio.DecodeError, match="cannot be read as a HEIF image"):
+        rawio.read_encoded(path, "srgb")
+    data = (HEIF_FIXTURES / "rotated.heic").read_bytes()
+    path.write_bytes(data[:len(data) * 2 // 3])  # cut short
+    with pytest.raises(rawio.DecodeError, match="HEIF"):
+        rawio.read_encoded(path, "srgb")
+
+
+def test_a_folder_of_formats_ingest_does_not_read_says_what_to_do(tmp_path):
+    folder = tmp_path / "export"
+    folder.mkdir()
+    for name in ("a.avif", "b.AVIF", "c.jxl", "notes.txt"):
+        (folder / name).write_bytes(b"\x00" * 16)
+    with pytest.raises(PipelineError, match=r"2 AVIF \(\.avif\), 1 JPEG XL \(\.jxl\) files, a "
+                       r"format ingest does not read: convert them to JPEG"):
+        select_files(folder, "auto")

@@ -18,7 +18,7 @@ from typing import Any, TypedDict
 
 from seathru.errors import PipelineError
 from seathru.io.dataset_readers import layout_images, not_a_folder
-from seathru.io.raw import KINDS, detect_kind
+from seathru.io.raw import KINDS, UNREAD_FORMATS, detect_kind
 from seathru.io.video import VideoFrames, is_video
 
 
@@ -123,6 +123,25 @@ def folder_files(folder: Path, every_folder: bool = False) -> list[tuple[Path, s
         (path, path.stem) for path in _visible_files(folder)]
 
 
+#: What ingest reads, as its messages name it.
+READ_FORMATS = "RAW, JPEG, PNG, TIFF, HEIC, WebP"
+
+
+def _unread_hint(files: list[tuple[Path, str]]) -> str:
+    """What the files hold that ingest does not read, and what to do: '' where nothing."""
+    counts: dict[str, int] = {}
+    for path, _ in files:
+        suffix = path.suffix.lower()
+        if suffix in UNREAD_FORMATS:
+            name = f"{UNREAD_FORMATS[suffix]} ({suffix})"
+            counts[name] = counts.get(name, 0) + 1
+    if not counts:
+        return ""
+    listed = ", ".join(f"{count} {name}" for name, count in counts.items())
+    return (f"; it holds {listed} files, a format ingest does not read: convert them to JPEG, "
+            f"or to 16-bit TIFF to keep their depth")
+
+
 def select_files(folder: Path, kind: str, every_folder: bool = False,
                  files: list[tuple[Path, str]] | None = None
                  ) -> tuple[list[tuple[Path, str, str]], list[RejectedFile], dict[str, Any]]:
@@ -142,7 +161,8 @@ def select_files(folder: Path, kind: str, every_folder: bool = False,
                 f" (choose one with the sheet's options ingest.images=<subfolder>, take them "
                 f"all with ingest.images={EVERY_FOLDER}, or use the sheet's source llff, "
                 f"colmap or nerfstudio for those layouts)" if with_images else "")
-        raise PipelineError(f"{folder}: no image files (RAW, JPEG, PNG, TIFF) found{hint}")
+        raise PipelineError(f"{folder}: no image files ({READ_FORMATS}) found"
+                            f"{_unread_hint(files)}{hint}")
     return select_paths(files, kind)
 
 
@@ -171,8 +191,8 @@ def select_paths(files: list[tuple[Path, str]], kind: str
     counts = {k: v for k, v in counts.items() if v}
     if not candidates:
         listed = ", ".join(str(path) for path, _ in files[:5]) or "none"
-        raise PipelineError(f"no image files (RAW, JPEG, PNG, TIFF) among the {len(files)} "
-                            f"given ({listed})")
+        raise PipelineError(f"no image files ({READ_FORMATS}){_unread_hint(files)} among the "
+                            f"{len(files)} given ({listed})")
 
     if kind == "auto":
         dataset_kind = next(k for k in KINDS if k in counts)

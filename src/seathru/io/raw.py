@@ -28,6 +28,7 @@ loads, and ``seathru --help`` stays fast.
 
 from __future__ import annotations
 
+import io
 import logging
 import math
 import struct
@@ -52,8 +53,17 @@ RAW_EXTENSIONS = frozenset(
     ".3fr .ari .arw .bay .cap .cr2 .cr3 .crw .dcr .dcs .dng .drf .eip .erf .fff .gpr .iiq .k25 "
     ".kdc .mdc .mef .mos .mrw .nef .nrw .obm .orf .pef .ptx .pxn .r3d .raf .raw .rwl .rw2 .rwz "
     ".sr2 .srf .srw .sti .x3f".split())
+#: HEIF containers (a phone's HEIC photographs), decoded by libheif through pi-heif, which
+#: applies the container's own rotation and mirroring (the EXIF orientation only repeats them).
+HEIF_EXTENSIONS = frozenset({".heic", ".heif", ".hif"})
 #: Encoded image extensions (kind decided by the recorded curve or the bit depth for PNG/TIFF).
-ENCODED_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff"})
+ENCODED_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp",
+                                *HEIF_EXTENSIONS})
+#: Image formats met on cards and drives that ingest does not read, and what to do instead.
+UNREAD_FORMATS = {".avif": "AVIF", ".jxl": "JPEG XL", ".psd": "Photoshop", ".gif": "GIF",
+                  ".bmp": "BMP", ".jp2": "JPEG 2000", ".exr": "OpenEXR"}
+#: HEIF colour information (nclx) transfer characteristics (ITU-T H.273) ingest can follow.
+_NCLX_TRANSFER = {13: "srgb", 8: "linear", 4: "gamma 2.2", 5: "gamma 2.8"}
 #: What a file holds: camera RAW, linear values, or values encoded by a display curve (sRGB's,
 #: or the power curve the file's colour profile records: ``srgb`` names them all).
 ImageKind = Literal["raw", "linear", "srgb"]
@@ -130,6 +140,29 @@ def _tag_number(tag) -> float | None:
     return value if math.isfinite(value) and value > 0 else None
 
 
+def _open_heif(path: Path, **options):
+    import pi_heif
+
+    try:
+        return pi_heif.open_heif(path, **options)
+    except Exception as exc:  # noqa: BLE001 - libheif's errors come as several types
+        raise DecodeError(f"cannot be read as a HEIF image ({type(exc).__name__}: {exc})") from exc
+
+
+def _exif_tags(path: Path) -> dict:
+    import exifread
+
+    if path.suffix.lower() in HEIF_EXTENSIONS:   # the EXIF block is an item of the container
+        try:
+            block = _open_heif(path).info.get("exif") or b""
+        except DecodeError:
+            return {}
+        stream = io.BytesIO(block[6:] if block.startswith(b"Exif\x00\x00") else block)
+        return exifread.process_file(stream, details=False)
+    with open(path, "rb") as handle:
+        return exifread.process_file(handle, details=False)
+
+
 def read_exif(path: str | Path) -> tuple[ExifExposure, set[str]]:
     """Exposure time (s), ISO, f-number and orientation from the file's EXIF/TIFF tags (exifread).
 
@@ -137,11 +170,8 @@ def read_exif(path: str | Path) -> tuple[ExifExposure, set[str]]:
     0 value, as in the Canon 550D DNG, means 'not recorded' and must not be replaced by a
     decoder default).
     """
-    import exifread
-
     try:
-        with open(path, "rb") as handle:
-            tags = exifread.process_file(handle, details=False)
+        tags = _exif_tags(Path(path))
     except Exception:  # noqa: BLE001 - exifread raises many types on odd files; EXIF is optional
         tags = {}
     exposure = ExifExposure()
@@ -333,18 +363,27 @@ def recorded_curve(path: str | Path) -> RecordedCurve | None:
         RecordedCurve(encoding='gamma 1.8', source="ICC profile 'ProPhoto RGB'")
     """
     path = Path(path)
+    suffix = path.suffix.lower()
     try:
-        if path.suffix.lower() in (".tif", ".tiff"):
+        if suffix in (".tif", ".tiff"):
             with tifffile.TiffFile(path) as tif:
                 tag = tif.pages[0].tags.get(TIFF_ICC_TAG)
                 return _profile_curve(None if tag is None else bytes(tag.value))
-        with Image.open(path) as image:
-            info = dict(image.info)
+        if suffix in HEIF_EXTENSIONS:
+            info = dict(_open_heif(path).info)
+        else:
+            with Image.open(path) as image:
+                info = dict(image.info)
     except Exception:  # noqa: BLE001 - an unreadable file is reported when decoding
         return None
     from_profile = _profile_curve(info.get("icc_profile"))
-    if from_profile is not None or path.suffix.lower() != ".png":
+    if from_profile is not None:
         return from_profile
+    if suffix in HEIF_EXTENSIONS and info.get("nclx_profile"):
+        code = info["nclx_profile"].get("transfer_characteristics")
+        return RecordedCurve(_NCLX_TRANSFER.get(code), f"HEIF colour information (transfer {code})")
+    if suffix != ".png":
+        return None
     if "srgb" in info:
         return RecordedCurve("srgb", "PNG sRGB chunk")
     if info.get("gamma"):
@@ -363,13 +402,15 @@ def detect_kind(path: str | Path) -> str | None:
     suffix = path.suffix.lower()
     if suffix in RAW_EXTENSIONS:
         return "raw"
-    if suffix in (".jpg", ".jpeg"):
+    if suffix in (".jpg", ".jpeg", ".webp"):
         return "srgb"
-    if suffix not in (".png", ".tif", ".tiff"):
+    if suffix not in ENCODED_EXTENSIONS:
         return None
     recorded = recorded_curve(path)
     if recorded is not None and recorded.encoding is not None:
         return "linear" if recorded.encoding == "linear" else "srgb"
+    if suffix in HEIF_EXTENSIONS:
+        return "srgb"   # 8- and 10-bit HEIF hold display-encoded values
     try:
         if suffix == ".png":
             return "linear" if (_png_bit_depth(path) or 8) > 8 else "srgb"
@@ -421,7 +462,19 @@ def jpeg_cut_short(data: bytes) -> bool:
 
 
 def _read_array(path: Path) -> np.ndarray:
-    if path.suffix.lower() in (".tif", ".tiff"):
+    if path.suffix.lower() in HEIF_EXTENSIONS:
+        heif = _open_heif(path, convert_hdr_to_8bit=False)
+        try:
+            # a copy: the array interface points into the HEIF object's own buffer, freed with it
+            array = np.array(heif, copy=True)
+        except Exception as exc:  # noqa: BLE001 - a damaged HEVC stream fails here
+            raise DecodeError(f"its HEIF image data cannot be decoded ({type(exc).__name__}: "
+                              f"{exc})") from exc
+        bits = int(heif.info.get("bit_depth") or 8)
+        if array.dtype == np.uint16 and 8 < bits < 16:   # 10/12-bit codes come shifted to 16
+            top = (1 << bits) - 1
+            array = np.round((array >> (16 - bits)) * (65535.0 / top)).astype(np.uint16)
+    elif path.suffix.lower() in (".tif", ".tiff"):
         try:
             with tifffile.TiffFile(path) as tif:
                 array = tif.pages[0].asarray()
@@ -505,7 +558,8 @@ def read_encoded(path: str | Path, kind: str) -> DecodedImage:
     values = np.asarray(stored_encoding.decode(values, transfer), dtype=np.float32)
     saturated, black_clipped = linearise.encoded_clipping(codes)
     exif, _ = read_exif(path)
-    flip = linearise.exif_orientation_to_flip(exif.orientation)
+    flip = 0 if path.suffix.lower() in HEIF_EXTENSIONS else \
+        linearise.exif_orientation_to_flip(exif.orientation)
     metadata = {"bit_depth": int(codes.dtype.itemsize * 8), "sample_type": str(codes.dtype),
                 "flip": flip, "transfer": transfer, "transfer_source": source}
     return DecodedImage(
