@@ -23,6 +23,7 @@ from seathru.errors import PipelineError
 from seathru.io import raw as rawio
 from seathru.io.dataset_readers import frame_names, layout_images, read_source_mask
 from seathru.io.images import read_mask
+from seathru.io.stored_views import read_stored_codes, read_stored_views
 from seathru.io.image_folder import (every_image_file, find_inputs, image_subfolders,
                                      resolve_input, select_files, select_paths)
 from seathru.steps import ingest
@@ -1048,6 +1049,10 @@ def test_a_folder_of_heic_and_webp_photographs_is_ingested(tmp_path):
     assert len(by_name) == 6 and manifest["input"]["kind"] == "srgb"
     assert by_name["IMG_0001"]["exposure_time"] == pytest.approx(1 / 125)
     assert (by_name["IMG_0001"]["width"], by_name["IMG_0001"]["height"]) == (32, 48)
+    # the evaluation reads the stored photographs as ingest did: turned, at full depth
+    views = read_stored_views(tmp_path / "out")
+    assert read_stored_codes(views["IMG_0001"]).shape == (48, 32, 3)
+    assert read_stored_codes(views["IMG_0000"]).dtype == np.uint16
     webp = tifffile.imread(tmp_path / "out" / by_name["IMG_0002_edit"]["linear"])
     np.testing.assert_allclose(webp, _srgb_reference(_ramp(value=42) / 255.0)
                                * by_name["IMG_0002_edit"]["exposure_factor"], rtol=1e-5)

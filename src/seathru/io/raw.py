@@ -461,7 +461,13 @@ def jpeg_cut_short(data: bytes) -> bool:
     return True
 
 
-def _read_array(path: Path) -> np.ndarray:
+def read_stored_array(path: Path) -> np.ndarray:
+    """An encoded image file's values as it stores them, ``(H, W, 3)`` uint8, uint16 or float,
+    not yet oriented by its EXIF (a HEIF container's own rotation is applied by libheif).
+
+    Raises:
+        DecodeError: the file cannot be read, naming why (cut short, damaged, another layout).
+    """
     if path.suffix.lower() in HEIF_EXTENSIONS:
         heif = _open_heif(path, convert_hdr_to_8bit=False)
         try:
@@ -543,7 +549,7 @@ def read_encoded(path: str | Path, kind: str) -> DecodedImage:
     if kind not in ("linear", "srgb"):
         raise ValueError(f"kind must be 'linear' or 'srgb', not {kind!r}")
     path = Path(path)
-    codes = _read_array(path)
+    codes = read_stored_array(path)
     if codes.dtype in (np.uint8, np.uint16):
         values = codes.astype(np.float32) / np.float32(np.iinfo(codes.dtype).max)
     elif np.issubdtype(codes.dtype, np.floating):

@@ -25,7 +25,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pycolmap
-import tifffile
 
 from seathru.errors import PipelineError
 from seathru.io.cameras import CameraSet, Frame
@@ -34,6 +33,7 @@ from seathru.io.colmap import (Interpolation, Undistortion, camera_at_size, make
 from seathru.io.images import read_image
 from seathru.io.manifest import read_manifest
 from seathru.io.pose_report import read_pose_report
+from seathru.io.raw import DecodeError, read_stored_array
 from seathru.io.video import read_video_frame
 from seathru.radiometry.linearise import orient, resize_area
 
@@ -117,17 +117,11 @@ def read_stored_codes(view: StoredView) -> np.ndarray:
                             "since ingest")
     if view.video_frame is not None:
         codes = cv2.cvtColor(read_video_frame(view.path, view.video_frame), cv2.COLOR_BGR2RGB)
-    elif view.path.suffix.lower() in (".tif", ".tiff"):
-        codes = tifffile.imread(view.path)
-        if codes.ndim == 3 and codes.shape[0] in (3, 4) and codes.shape[2] not in (3, 4):
-            codes = np.moveaxis(codes, 0, -1)  # planar-separate TIFF
     else:
-        codes = cv2.imread(str(view.path), cv2.IMREAD_UNCHANGED)  # no EXIF orientation
-        if codes is None:
-            raise PipelineError(f"{view.path}: stored image cannot be read")
-        if codes.ndim == 3:
-            codes = cv2.cvtColor(codes, cv2.COLOR_BGRA2RGB if codes.shape[2] == 4
-                                 else cv2.COLOR_BGR2RGB)
+        try:
+            codes = read_stored_array(view.path)   # read as ingest read it
+        except DecodeError as exc:
+            raise PipelineError(f"{view.path}: stored image cannot be read: {exc}") from exc
     if codes.ndim == 2:
         codes = np.repeat(codes[..., None], 3, axis=2)
     return orient(codes[..., :3], view.flip)
