@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from seathru.geometry.poses import umeyama
-from seathru.geometry.quality import (QualityGate, SfmAttempt, SfmRun, SfmSettings,
+from seathru.geometry.quality import (PairMotion, QualityGate, SfmAttempt, SfmRun, SfmSettings,
                                       confirmed_run, failure_message, independent,
                                       plan_attempts, pose_agreement, reprojection_scale,
                                       unconfirmed_message, unconfirmed_run)
@@ -194,11 +194,31 @@ def test_a_failure_on_a_handful_of_images_says_the_set_is_too_small():
 
 
 def test_a_failure_where_the_camera_did_not_move_says_so_instead_of_settings():
-    still = failure_message([], None, 16, QualityGate(), largest_shift=0.0001)
+    still = failure_message([], None, 16, QualityGate(), motion=PairMotion(0.0001, 0.0, 28))
     assert "taken from one place" in still and "0.01% of the image diagonal" in still
     assert "poses.focal_px" not in still
-    moving = failure_message([], None, 16, QualityGate(), largest_shift=0.08)
+    moving = failure_message([], None, 16, QualityGate(), motion=PairMotion(0.08, 0.0, 28))
     assert "taken from one place" not in moving and "poses.focal_px" in moving
+
+
+def test_pairs_related_by_homographies_alone_are_told_as_turning_or_a_flat_scene():
+    turned = PairMotion(largest_shift=0.2, homography_share=1.0, pairs=45)
+    failed = failure_message([], None, 10, QualityGate(), motion=turned, focal_known=False)
+    assert "100% of the 45 matched pairs" in failed and "turned about one point" in failed
+    assert "flat (a sand plain seen from above), which COLMAP can pose only from a known " \
+           "focal length" in failed
+    with_focal = failure_message([], None, 10, QualityGate(), motion=turned, focal_known=True)
+    assert "turned about one point" in with_focal and "can pose only" not in with_focal
+    reef_like = PairMotion(largest_shift=0.18, homography_share=1 / 63, pairs=63)
+    assert "homography" not in failure_message([], None, 20, QualityGate(), motion=reef_like)
+    attempt = SfmAttempt(settings={"matcher": "sequential", "mapper": "global", "seed": 0},
+                         registered=10, total=10, passed=False)
+    doubtful = unconfirmed_message([attempt], attempt, QualityGate(), motion=turned,
+                                   focal_known=False)
+    assert "the camera model was not confirmed" in doubtful
+    assert "related by a homography alone" in doubtful
+    assert "homography" not in unconfirmed_message([attempt], attempt, QualityGate(),
+                                                    motion=reef_like)
 
 
 def test_a_failure_names_the_views_that_share_no_matches():

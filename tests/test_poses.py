@@ -616,6 +616,25 @@ def test_photographs_from_one_place_fail_saying_the_camera_must_move(tmp_path):
     assert not out.exists()
 
 
+def test_photographs_turned_about_one_point_fail_saying_so(tmp_path):
+    """A panning tripod: one centre, the view turned from -8 to +8 degrees (each frame the
+    same scene through K R K^-1). No 3D; every matched pair is a homography."""
+    import skimage.data
+
+    scene = cv2.resize(skimage.data.astronaut(), (320, 240), interpolation=cv2.INTER_AREA)
+    focal, (height, width) = 260.0, scene.shape[:2]
+    camera = np.array([[focal, 0, width / 2], [0, focal, height / 2], [0, 0, 1]])
+    frames = {}
+    for index, yaw in enumerate(np.radians(np.linspace(-8.0, 8.0, 8))):
+        turn = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
+        warped = cv2.warpPerspective(scene, camera @ turn @ np.linalg.inv(camera), (width, height))
+        frames[f"pan_{index:03d}"] = np.ascontiguousarray(warped[30:210, 40:280])
+    message, out = _failed_poses(tmp_path, frames)
+    assert "of the 28 matched pairs of photographs are related by a homography alone" in message
+    assert "turned about one point" in message and "poses.focal_px" in message
+    assert not out.exists()
+
+
 def test_views_of_open_water_fail_saying_they_hold_no_features(tmp_path):
     # a diver's frames of blue water: a vertical gradient and sensor noise, nothing to match
     rng = np.random.default_rng(0)

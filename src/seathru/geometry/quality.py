@@ -296,6 +296,39 @@ FEW_IMAGES = 10
 #: frames of dives that registered (d3_reef, a simulated transect).
 STILL_SHIFT = 0.01
 
+#: From this share of the verified pairs related by a homography alone on, the camera turned
+#: about one point or the scene is flat (a panning tripod: every pair; d3_reef: 1 of 63).
+HOMOGRAPHY_SHARE = 0.9
+
+
+@dataclass(frozen=True)
+class PairMotion:
+    """How the photographs move against each other over the verified pairs of a matched COLMAP
+    database (``seathru.io.sfm.pair_motion``): ``largest_shift``, the largest of each pair's
+    median image displacement of its inlier matches as a share of the image diagonal (near zero
+    only where every photograph was taken from one place, on a tripod or a fixed mount: 0.01%
+    for copies of one d3_reef frame against 18% for the diver's 20 frames around the coral
+    head); ``homography_share``, the share of pairs a homography alone relates (COLMAP's
+    planar or panoramic pairs); ``pairs``: how many pairs."""
+
+    largest_shift: float
+    homography_share: float
+    pairs: int
+
+
+def _turned_or_flat(motion: PairMotion | None, focal_known: bool | None) -> str:
+    """A sentence where nearly every pair is a homography, else ''."""
+    if motion is None or motion.homography_share < HOMOGRAPHY_SHARE:
+        return ""
+    focal = ("" if focal_known else ", which COLMAP can pose only from a known focal length "
+             "(poses.focal_px, or poses.focal_mm with poses.sensor_width_mm)")
+    return (f" {motion.homography_share:.0%} of the {motion.pairs} matched pairs of photographs "
+            f"are related by a homography alone (COLMAP: planar or panoramic): either the "
+            f"camera only turned about one point (a panning tripod, a diver turning in place), "
+            f"which holds no 3D, so swim along or around the scene instead, or the scene is "
+            f"flat (a sand plain seen from above){focal}.")
+
+
 #: COLMAP keeps an image pair with at least 15 verified (inlier) matches: an image with fewer
 #: with every other image has no partner to register with.
 FEW_MATCHES = 15
@@ -323,15 +356,15 @@ def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total
                     gate: QualityGate, matched: dict[str, int] | None = None,
                     features: dict[str, int] | None = None, clahe: bool = True,
                     focal_known: bool | None = None,
-                    largest_shift: float | None = None) -> str:
+                    motion: PairMotion | None = None) -> str:
     """Why no model registers enough images: every attempt, and what to try next (sheet
     syntax). ``matched`` (verified inliers of each image's best pair) and ``features`` (SIFT
     keypoints per image), by image name: to name the views that have nothing to match;
     ``clahe``: whether the matching copies were equalised; ``focal_known``: whether COLMAP
     started from a focal length (the photographs' EXIF or the settings; None: not said);
-    ``largest_shift``: how far matched features move between any two photographs, as a share
-    of the image diagonal (``seathru.io.sfm.largest_pair_shift``; below :data:`STILL_SHIFT`
-    the photographs were taken from one place, and no COLMAP setting helps)."""
+    ``motion``: how the photographs move against each other (:class:`PairMotion`: a largest
+    shift below :data:`STILL_SHIFT` means they were taken from one place, and no COLMAP
+    setting helps; pairs that are homographies, a camera turned in place or a flat scene)."""
     registered = chosen.registered if chosen else 0
     tried = "; ".join(
         f"{a.settings['matcher']} matching + {a.settings['mapper']} mapping, seed "
@@ -342,15 +375,17 @@ def failure_message(attempts: list[SfmAttempt], chosen: SfmAttempt | None, total
     few = (f" Only {total} images: structure from motion and a NeRF need tens of overlapping "
            f"photographs of the scene (each part seen from three or more positions)."
            if total < FEW_IMAGES else "")
-    if largest_shift is not None and largest_shift < STILL_SHIFT:
+    if motion is not None and motion.largest_shift < STILL_SHIFT:
         return (f"COLMAP registered only {registered} of {total} images: the photographs were "
-                f"taken from one place (matched features move at most {largest_shift:.2%} of "
-                f"the image diagonal between any two of them, as on a tripod or a fixed "
+                f"taken from one place (matched features move at most "
+                f"{motion.largest_shift:.2%} of the image diagonal between any two of them, as "
+                f"on a tripod or a fixed "
                 f"mount). A 3D model needs photographs from several positions: swim along or "
                 f"around the scene with each photograph overlapping the next by about two "
                 f"thirds, or leave the still frames out. Tried: {tried}")
     return (f"COLMAP registered only {registered} of {total} images in its largest model "
             f"(need {gate.min_registered_fraction:.0%}).{few}"
+            f"{_turned_or_flat(motion, focal_known)}"
             f"{_unmatched(matched or {}, features or {}, total)} Tried: {tried}. Try "
             f"{', '.join(_sheet_advice(attempts, clahe, 16384, focal_known))}, or remove images "
             f"that do not overlap the others"
@@ -382,7 +417,8 @@ def _sheet_advice(attempts: list[SfmAttempt], clahe: bool, max_features: int | N
 
 def unconfirmed_message(attempts: list[SfmAttempt], chosen: SfmAttempt, gate: QualityGate,
                         clahe: bool = True, kept: bool = False,
-                        focal_known: bool | None = None) -> str:
+                        focal_known: bool | None = None,
+                        motion: PairMotion | None = None) -> str:
     """Why the model kept was not confirmed, and which options to try (sheet syntax).
 
     Names the kept attempt's figures, each failed limit (registered share, mean reprojection
@@ -390,7 +426,9 @@ def unconfirmed_message(attempts: list[SfmAttempt], chosen: SfmAttempt, gate: Qu
     extent, rotations in degrees), or that no independent model passed the gate to compare with.
     ``clahe``: whether the matching copies were equalised (the advice is to try the other way);
     ``kept``: the model is kept anyway (``poses.on_unconfirmed=warn``), else the step fails;
-    ``focal_known``: whether COLMAP started from a focal length (None: not said).
+    ``focal_known``: whether COLMAP started from a focal length (None: not said); ``motion``:
+    how the photographs move against each other (:class:`PairMotion`), to say when nearly
+    every pair is a homography.
     """
     index = attempts.index(chosen) + 1 if chosen in attempts else 0
     error = chosen.mean_reprojection_px
@@ -427,6 +465,7 @@ def unconfirmed_message(attempts: list[SfmAttempt], chosen: SfmAttempt, gate: Qu
     return (f"the camera model was not confirmed: the model kept (attempt {index} of "
             f"{len(attempts)}, {chosen.settings.get('matcher')} matching + "
             f"{chosen.settings.get('mapper')} mapping: {chosen.registered}/{chosen.total} "
-            f"registered) is doubtful: {'; '.join(reasons)}. Repeated texture (tiles, sand "
-            f"ripples) or too little overlap can give a wrong model that looks consistent. Try "
+            f"registered) is doubtful: {'; '.join(reasons)}."
+            f"{_turned_or_flat(motion, focal_known)} Repeated texture (tiles, sand ripples) or "
+            f"too little overlap can give a wrong model that looks consistent. Try "
             f"{', '.join(advice)}; {ending}")

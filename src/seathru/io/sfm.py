@@ -25,7 +25,8 @@ import pycolmap
 from seathru.errors import PipelineError
 from seathru.geometry.intrinsics import FocalPrior, initial_camera_params
 from seathru.geometry.poses import c2w_from_cam_from_world
-from seathru.geometry.quality import (MAPPERS, MATCHERS, STILL_SHIFT, QualityGate, SfmAttempt,
+from seathru.geometry.quality import (MAPPERS, MATCHERS, STILL_SHIFT, PairMotion, QualityGate,
+                                      SfmAttempt,
                                       SfmRun, SfmSettings, confirmed_run, failure_message,
                                       plan_attempts, pose_agreement, reprojection_scale,
                                       unconfirmed_message, unconfirmed_run)
@@ -189,7 +190,7 @@ class SfmResult:
     attempts: list[SfmAttempt]
     features: dict[str, int] = field(default_factory=dict)  # SIFT keypoints per image name
     matched: dict[str, int] = field(default_factory=dict)  # inliers of each image's best pair
-    largest_shift: float | None = None  # largest_pair_shift of the matches
+    motion: PairMotion | None = None  # pair_motion of the matches
 
     @property
     def passed(self) -> bool:
@@ -271,7 +272,7 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
     plan = plan_attempts(settings, retry, cross_check, global_mapping_available())
     runs: list[SfmRun] = []
     comparisons: dict[tuple[int, int], dict | None] = {}
-    shifts: dict[Path, float | None] = {}   # largest_pair_shift by matched database
+    motions: dict[Path, PairMotion | None] = {}   # pair_motion by matched database
     chosen: SfmRun | None = None
     with colmap_log_level(verbose):
         start = time.perf_counter()
@@ -289,11 +290,11 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
             runs.append(SfmRun(current, attempt, model))
             if len(runs) == 1 and attempt.registered == 0 and runner.matched:
                 first_db = next(iter(runner.matched.values()))
-                shifts[first_db] = shift = largest_pair_shift(first_db)
-                if shift is not None and shift < STILL_SHIFT:
+                motions[first_db] = motion = pair_motion(first_db)
+                if motion is not None and motion.largest_shift < STILL_SHIFT:
                     log.warning("matched features move at most %.2f%% of the image diagonal "
                                 "between photographs: taken from one place, no retry",
-                                100 * shift)
+                                100 * motion.largest_shift)
                     break
             if len(runs) == 1 and not attempt.passed and retry:
                 queue.insert(0, replace(current, seed=current.seed + 1))
@@ -307,12 +308,12 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
     # the exhaustive matcher's pairs, where it ran, are every pair
     databases = sorted(runner.matched.items(), key=lambda item: item[0][0] != "exhaustive")
     support = best_pair_inliers(databases[0][1], features) if databases else {}
-    if databases and databases[0][1] not in shifts:
-        shifts[databases[0][1]] = largest_pair_shift(databases[0][1])
-    shift = shifts[databases[0][1]] if databases else None
+    if databases and databases[0][1] not in motions:
+        motions[databases[0][1]] = pair_motion(databases[0][1])
+    motion = motions[databases[0][1]] if databases else None
     if chosen is None or chosen.attempt.registered == 0:
-        return SfmResult(None, None, runner.attempts, features, support, shift)
-    return SfmResult(chosen.model, chosen.attempt, runner.attempts, features, support, shift)
+        return SfmResult(None, None, runner.attempts, features, support, motion)
+    return SfmResult(chosen.model, chosen.attempt, runner.attempts, features, support, motion)
 
 
 def feature_counts(database: Path) -> dict[str, int]:
@@ -341,22 +342,29 @@ def best_pair_inliers(database: Path, features: dict[str, int]) -> dict[str, int
         db.close()
 
 
-def largest_pair_shift(database: Path) -> float | None:
-    """How far matched features move between photographs: over the verified pairs of a matched
-    COLMAP database, the largest of each pair's median image displacement of its inlier
-    matches, as a share of the image diagonal (None: no verified pair). Near zero only where
-    every photograph was taken from one place (on a tripod or a fixed mount: 0.01% for
-    copies of one d3_reef frame against 18% for the diver's 20 frames around the coral head)."""
+#: Two-view relations COLMAP explains by a homography alone: the camera turned about one
+#: point, or the scene is a plane (without a focal length COLMAP cannot tell which).
+HOMOGRAPHY_CONFIGURATIONS = frozenset({
+    pycolmap.TwoViewGeometryConfiguration.PLANAR, pycolmap.TwoViewGeometryConfiguration.PANORAMIC,
+    pycolmap.TwoViewGeometryConfiguration.PLANAR_OR_PANORAMIC})
+
+
+def pair_motion(database: Path) -> PairMotion | None:
+    """How the photographs of a matched COLMAP database move against each other, over its
+    verified pairs (``seathru.geometry.quality.PairMotion``; a homography alone relates a pair
+    of :data:`HOMOGRAPHY_CONFIGURATIONS`); None where no pair was verified."""
     db = pycolmap.Database.open(database)
     try:
         cameras = {camera.camera_id: camera for camera in db.read_all_cameras()}
         camera_of = {image.image_id: image.camera_id for image in db.read_all_images()}
         keypoints: dict[int, np.ndarray] = {}
-        largest = None
+        largest, pairs, homographies = None, 0, 0
         for pair_id, geometry in zip(*db.read_two_view_geometries()):
             matches = geometry.inlier_matches
             if len(matches) == 0:
                 continue
+            pairs += 1
+            homographies += geometry.config in HOMOGRAPHY_CONFIGURATIONS
             first, second = pycolmap.pair_id_to_image_pair(pair_id)
             for image_id in (first, second):
                 if image_id not in keypoints:
@@ -366,7 +374,7 @@ def largest_pair_shift(database: Path) -> float | None:
             camera = cameras[camera_of[first]]
             shift = float(np.median(moved) / np.hypot(camera.width, camera.height))
             largest = shift if largest is None else max(largest, shift)
-        return largest
+        return None if largest is None else PairMotion(largest, homographies / pairs, pairs)
     finally:
         db.close()
 
@@ -467,12 +475,13 @@ def colmap_poses(ingest: IngestFolder, out: Path, settings: SfmSettings, gate: Q
                    for counts in (result.matched, result.features)]
         raise PipelineError(failure_message(result.attempts, chosen, len(names), gate, *by_view,
                                             clahe=clahe, focal_known=focal_px is not None,
-                                            largest_shift=result.largest_shift))
+                                            motion=result.motion))
     gate_message = None
     if not chosen.passed:
         gate_message = unconfirmed_message(result.attempts, chosen, gate, clahe,
                                            kept=on_unconfirmed == "warn",
-                                           focal_known=focal_px is not None)
+                                           focal_known=focal_px is not None,
+                                           motion=result.motion)
         if on_unconfirmed == "fail":
             raise PipelineError(gate_message)
         log.info("keeping the unconfirmed model (poses.on_unconfirmed=warn)")
