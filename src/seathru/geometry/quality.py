@@ -320,8 +320,8 @@ def _turned_or_flat(motion: PairMotion | None, focal_known: bool | None) -> str:
     """A sentence where nearly every pair is a homography, else ''."""
     if motion is None or motion.homography_share < HOMOGRAPHY_SHARE:
         return ""
-    focal = ("" if focal_known else ", which COLMAP can pose only from a known focal length "
-             "(poses.focal_px, or poses.focal_mm with poses.sensor_width_mm)")
+    focal = ("" if focal_known else ", where a known focal length (poses.focal_px, or "
+             "poses.focal_mm with poses.sensor_width_mm) lets COLMAP tell the two apart")
     return (f" {motion.homography_share:.0%} of the {motion.pairs} matched pairs of photographs "
             f"are related by a homography alone (COLMAP: planar or panoramic): either the "
             f"camera only turned about one point (a panning tripod, a diver turning in place), "
