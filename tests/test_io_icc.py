@@ -218,10 +218,30 @@ def test_a_jpeg_is_decoded_by_its_profiles_curve(tmp_path):
 def test_a_curve_of_no_known_kind_falls_back_to_srgb_with_a_warning(tmp_path):
     path = _tiff(tmp_path / "rec709.tif", profile=REC709)
     assert rawio.recorded_curve(path).encoding is None
-    assert rawio.detect_kind(path) == "linear"                  # the bit depth decides
+    assert rawio.detect_kind(path) == "srgb"        # display-encoded, whatever the bit depth
     decoded = rawio.read_encoded(path, "srgb")
     assert decoded.metadata["transfer"] == "srgb"
-    assert "'Rec. 709'" in decoded.warnings[0] and "ingest.kind=linear" in decoded.warnings[0]
+    assert decoded.metadata["transfer_source"] == "in place of the ICC profile 'Rec. 709''s curve"
+    folder = tmp_path / "exports"
+    folder.mkdir()
+    for index in range(3):
+        _tiff(folder / f"F{index}.tif", CODES + index, REC709 if index else PROPHOTO)
+    manifest, warnings = _ingest(folder, tmp_path / "out")
+    warning, = [w for w in warnings if w["code"] == "unknown_curve"]
+    assert warning["details"]["images"] == ["F1", "F2"] and "2 of 3 image(s)" in warning["message"]
+    assert "ingest.kind=linear" in warning["message"]
+    assert [image["decoder"]["transfer"] for image in manifest["images"]] == [
+        "gamma 1.8", "srgb", "srgb"]
+
+
+def _ingest(folder: Path, out: Path) -> tuple[dict, list[dict]]:
+    """Run the ingest step in-process: its manifest and its warnings."""
+    parser = argparse.ArgumentParser()
+    ingest.add_arguments(parser)
+    ingest.run(parser.parse_args(["--input", str(folder), "--out", str(out), "--workers", "1",
+                                  "--wb", "none", "--no-exposure-normalise"]))
+    return (json.loads((out / "manifest.json").read_text()),
+            json.loads((out / "warnings.json").read_text())["warnings"])
 
 
 def test_ingest_of_prophoto_exports_decodes_them_and_the_evaluation_inverts_it(tmp_path):
@@ -229,13 +249,8 @@ def test_ingest_of_prophoto_exports_decodes_them_and_the_evaluation_inverts_it(t
     folder.mkdir()
     for index in range(3):
         _tiff(folder / f"DSC_{index:04d}.tif", CODES + index)
-    parser = argparse.ArgumentParser()
-    ingest.add_arguments(parser)
-    args = parser.parse_args(["--input", str(folder), "--out", str(tmp_path / "out"),
-                              "--workers", "1", "--wb", "none", "--no-exposure-normalise"])
-    ingest.run(args)
-    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
-    assert manifest["input"]["kind"] == "srgb"
+    manifest, warnings = _ingest(folder, tmp_path / "out")
+    assert manifest["input"]["kind"] == "srgb" and not warnings
     for image in manifest["images"]:
         assert image["decoder"]["transfer"] == "gamma 1.8"
         assert image["decoder"]["transfer_source"] == "ICC profile 'ProPhoto RGB'"
@@ -246,3 +261,18 @@ def test_ingest_of_prophoto_exports_decodes_them_and_the_evaluation_inverts_it(t
     assert view.encoding == "gamma 1.8"
     back = stored_encoding.stored_values(linear, view.gains, view.exposure_factor, view.encoding)
     np.testing.assert_allclose(back * 65535, CODES, atol=0.05)
+
+
+def test_grey_photographs_are_ingested_with_a_warning_that_names_the_water_they_cannot_show(
+        tmp_path):
+    folder = tmp_path / "mono"
+    folder.mkdir()
+    for index in range(3):
+        grey = (CODES[..., 1] // 257 + index).astype(np.uint8)
+        cv2.imwrite(str(folder / f"mono_{index}.png"), grey)             # one channel
+    cv2.imwrite(str(folder / "colour.png"), (CODES // 257).astype(np.uint8))
+    manifest, warnings = _ingest(folder, tmp_path / "out")
+    warning, = [w for w in warnings if w["code"] == "grey_images"]
+    assert warning["details"]["images"] == ["mono_0", "mono_1", "mono_2"]
+    assert "3 of 4 image(s) hold one channel" in warning["message"]
+    assert [image["decoder"]["grey"] for image in manifest["images"]] == [False, True, True, True]

@@ -295,11 +295,39 @@ def build_manifest(settings: Any, *, folder: Path, given: Path, subdir: str | No
     }
 
 
+def _decoding_warnings(images: list[ManifestImage]) -> list[StepWarning]:
+    """Images with one channel only, and images whose recorded curve is none ingest follows
+    (decoded as sRGB): both whether one image or all of them are so."""
+    found = []
+    decoders = {image["name"]: image.get("decoder") or {} for image in images}
+    grey = [name for name, decoder in decoders.items() if decoder.get("grey")]
+    if grey:
+        found.append(step_warning(
+            "ingest", "grey_images",
+            f"{len(grey)} of {len(images)} image(s) hold one channel (grey: R = G = B, e.g. "
+            f"{grey[0]}): the water's attenuation and colour differ per channel, which grey "
+            f"photographs cannot show, so the water fitted to them is one grey haze; use the "
+            f"colour originals (or the RAW files) where there are any", images=grey))
+    unknown = {name: decoder["transfer_source"] for name, decoder in decoders.items()
+               if str(decoder.get("transfer_source", "")).startswith("in place of")}
+    if unknown:
+        first = next(iter(unknown))
+        found.append(step_warning(
+            "ingest", "unknown_curve",
+            f"{len(unknown)} of {len(images)} image(s) record a curve from stored values to "
+            f"light that is none of linear, sRGB or a power curve (first, {first}: sRGB's used "
+            f"{unknown[first]}); their values are decoded with sRGB's, so the water fitted to "
+            f"them is off by the difference: export linear or sRGB files, or set "
+            f"ingest.kind=linear if the values are linear", images=sorted(unknown)))
+    return found
+
+
 def ingest_warnings(manifest: IngestManifest, clipped_share: float) -> list[StepWarning]:
     """What the ingest step's user should look at, from its manifest: rejected files, frames the
     dataset lists that are missing, images whose clipped (invalid) share exceeds
-    ``clipped_share``, the per-image warnings of the decoding that not every image has (those
-    describe the dataset, e.g. no EXIF at all: the manifest says so) and the dataset warnings."""
+    ``clipped_share``, grey images and curves decoded as sRGB in place of the one recorded,
+    the per-image warnings of the decoding that not every image has (those describe the
+    dataset, e.g. no EXIF at all: the manifest says so) and the dataset warnings."""
     found: list[StepWarning] = []
     rejected = manifest["rejected"]
     if rejected:
@@ -327,6 +355,7 @@ def ingest_warnings(manifest: IngestManifest, clipped_share: float) -> list[Step
             f"are masked out of training, so what only they show is not learnt; lower the "
             f"exposure or drop them (threshold: ingest.warn_clipped_share)",
             images=clipped, threshold=clipped_share))
+    found += _decoding_warnings(manifest["images"])
     # a condition every image shares (no EXIF at all) describes the dataset, not an image
     common = set.intersection(*(set(image["warnings"]) for image in manifest["images"])) \
         if manifest["images"] else set()

@@ -407,7 +407,7 @@ def detect_kind(path: str | Path) -> str | None:
     if suffix not in ENCODED_EXTENSIONS:
         return None
     recorded = recorded_curve(path)
-    if recorded is not None and recorded.encoding is not None:
+    if recorded is not None:   # a curve none of ours is still not linear's
         return "linear" if recorded.encoding == "linear" else "srgb"
     if suffix in HEIF_EXTENSIONS:
         return "srgb"   # 8- and 10-bit HEIF hold display-encoded values
@@ -517,10 +517,8 @@ def _display_encoding(path: Path) -> tuple[str, str, list[str]]:
     recorded = recorded_curve(path)
     if recorded is None:
         return "srgb", "no curve recorded", []
-    if recorded.encoding is None:
-        return "srgb", f"in place of the {recorded.source}'s curve", [
-            f"its {recorded.source} records a curve that is none of linear, sRGB or a power "
-            f"curve; decoded with sRGB's (set ingest.kind=linear if the values are linear)"]
+    if recorded.encoding is None:   # the ingest warnings name these (io.manifest)
+        return "srgb", f"in place of the {recorded.source}'s curve", []
     if recorded.encoding == "linear":
         return "srgb", "ingest.kind=srgb", [
             f"its {recorded.source} records linear values, decoded with sRGB's curve as "
@@ -566,8 +564,10 @@ def read_encoded(path: str | Path, kind: str) -> DecodedImage:
     exif, _ = read_exif(path)
     flip = 0 if path.suffix.lower() in HEIF_EXTENSIONS else \
         linearise.exif_orientation_to_flip(exif.orientation)
+    grey = bool(np.array_equal(codes[..., 0], codes[..., 1])
+                and np.array_equal(codes[..., 1], codes[..., 2]))
     metadata = {"bit_depth": int(codes.dtype.itemsize * 8), "sample_type": str(codes.dtype),
-                "flip": flip, "transfer": transfer, "transfer_source": source}
+                "flip": flip, "transfer": transfer, "transfer_source": source, "grey": grey}
     return DecodedImage(
         image=linearise.orient(values, flip), saturated=linearise.orient(saturated, flip),
         black_clipped=linearise.orient(black_clipped, flip), kind=kind, exposure=exif,
