@@ -406,6 +406,26 @@ def test_camera_jpeg_matches_float64_reference(level):
     np.testing.assert_allclose(sensor_mod.develop_jpeg(raw, config), expected, atol=1e-6)
 
 
+def test_the_camera_jpegs_auto_white_balance_greys_each_frame_within_its_limit():
+    config = sensor_mod.SensorConfig(jpeg_white_balance="auto")
+    rng = np.random.default_rng(3)
+    for cast in ((0.2, 0.5, 0.6), (0.05, 0.5, 0.4)):   # blue-green water; red faded past 4x
+        signal = np.ones((32, 48, 3)) * np.array(cast) * config.range_dn * 0.5
+        signal *= rng.uniform(0.8, 1.2, (32, 48, 1))
+        raw = sensor_mod.capture_raw(sensor_mod.mosaic_rggb(signal), config.iso, config, rng)
+        developed = sensor_mod.normalise_raw(sensor_mod.demosaic_bilinear(raw), config)
+        gains = sensor_mod.auto_white_balance_gains(developed)
+        means = developed.astype(np.float64).reshape(-1, 3).mean(0)
+        reference = np.clip(means[1] / means, 0.25, 4.0)      # float64, written out
+        np.testing.assert_allclose(gains, reference, rtol=1e-9)
+        balanced = sensor_mod.develop_jpeg(raw, config)
+        plain = sensor_mod.develop_jpeg(raw, sensor_mod.SensorConfig())
+        assert not np.allclose(balanced, plain)
+        linear = balanced ** 2.2                                  # near enough for the means
+        ratio = linear[..., 0].mean() / linear[..., 1].mean()
+        assert (ratio == pytest.approx(1.0, abs=0.1)) == (gains[0] < 4.0)
+
+
 def test_choices_of_the_settings_are_the_tables():
     assert typing.get_args(dive_mod.CameraPath) == tuple(dive_mod.CAMERA_PATHS)
     assert typing.get_args(WaterPreset) == tuple(PRESETS)

@@ -493,12 +493,14 @@ def ingest_input(wildcards):
 
 
 def ingest_source_flags(wildcards):
-    """Where ingest finds a dataset's images: the simulation's raw/, the sheet's folder (raw,
-    images; ingest.images may name a subfolder), or the images a posed dataset holds in its own
-    layout (llff, colmap, nerfstudio: --layout; ingest.images chooses the image folder)."""
+    """Where ingest finds a dataset's images: the simulation's raw/ (its camera JPEGs with
+    ingest.images=jpeg), the sheet's folder (raw, images; ingest.images may name a subfolder),
+    or the images a posed dataset holds in its own layout (llff, colmap, nerfstudio: --layout;
+    ingest.images chooses the image folder)."""
     kind = source(wildcards.dataset)
     if kind == "simulated":
-        return "--subdir raw --kind raw"
+        jpeg = step_options(wildcards.dataset, "ingest").get("images") == "jpeg"
+        return "--subdir jpeg" if jpeg else "--subdir raw --kind raw"
     if kind == "raw":
         return "--kind raw"
     if kind in ("llff", "colmap", "nerfstudio"):

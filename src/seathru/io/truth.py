@@ -139,7 +139,9 @@ def sensor_record(config: SensorConfig, plan: DivePlan, names: list[str]) -> dic
                          "iso / 100 (DN per electron)"),
         "jpeg": {"gain": jpeg_gain(config), "quality": JPEG_QUALITY,
                  "model": ("jpeg = sRGB(clip(gain * (demosaic_bilinear(raw) - black_level) / "
-                           "(white_level - black_level), 0, 1)), 8 bit; no white balance")},
+                           "(white_level - black_level) * wb, 0, 1)), 8 bit; wb = 1, or "
+                           "with jpeg_white_balance auto the frame's grey-world gains "
+                           "(seathru.sim.sensor.auto_white_balance_gains)")},
         "images": {name: {"exposure_time_s": e.exposure_time_s, "iso": e.iso,
                           "f_number": e.f_number, "ev_offset": e.ev_offset}
                    for name, e in zip(names, plan.exposures)},
@@ -150,6 +152,9 @@ def sensor_record(config: SensorConfig, plan: DivePlan, names: list[str]) -> dic
 def readme(spec: DiveSpec, test_every: int) -> str:
     """The folder's ``README.md``: layout, ground-truth definitions and the sensor model."""
     water, config = spec.water, spec.sensor
+    white_balance = ("no white balance" if config.jpeg_white_balance == "none" else
+                     "the camera's automatic white balance, frame by frame (grey world, "
+                     "recorded nowhere)")
     return f"""# Simulated dive (seathru simulate)
 
 {spec.views} views, {spec.width}x{spec.height} pixels, path `{spec.path}`,
@@ -198,8 +203,8 @@ ExposureTime, ISOSpeedRatings, FNumber and FocalLengthIn35mmFilm (by the image d
 millimetres, as cameras record it) are in the DNG's main IFD.
 
 The JPEG is the bilinearly demosaiced raw, normalised the same way, times one gain for
-the whole set (truth/sensor.json, `jpeg`), clipped and sRGB encoded, with no white
-balance: like a camera JPEG it keeps each image's exposure and noise.
+the whole set (truth/sensor.json, `jpeg`), clipped and sRGB encoded, with {white_balance}:
+like a camera JPEG it keeps each image's exposure and noise.
 """
 
 

@@ -17,8 +17,10 @@ Sensor (all values in DN, digital numbers):
   clipped to ``[0, white_level]`` (the sensor saturates at the white level).
 
 Camera JPEG (:func:`develop_jpeg`): the bilinearly demosaiced raw, normalised like a raw
-decoder, times one gain for the whole dive (:func:`jpeg_gain`), clipped and sRGB encoded; no
-white balance, so like a camera JPEG it keeps each image's exposure and noise.
+decoder, times one gain for the whole dive (:func:`jpeg_gain`), clipped and sRGB encoded; like a
+camera JPEG it keeps each image's exposure and noise. White balance (``jpeg_white_balance``):
+none, or the camera's automatic one, frame by frame (:func:`auto_white_balance_gains`), which
+no file records.
 """
 
 from __future__ import annotations
@@ -87,6 +89,7 @@ class SensorConfig:
     nominal_exposure_s: float = 1.0 / 125.0
     exposure_jitter_ev: float = 0.5  # exposure time varies uniformly within +-this many stops
     metering_fraction: float = 0.7   # metered radiance at nominal exposure -> this of the range
+    jpeg_white_balance: str = "none"  # none | auto (per frame: auto_white_balance_gains)
 
     @property
     def range_dn(self) -> int:
@@ -185,6 +188,30 @@ def jpeg_gain(config: SensorConfig) -> float:
     return JPEG_WHITE / config.metering_fraction
 
 
+#: How far a camera's automatic white balance moves a channel against green (its colour
+#: temperature range ends there: underwater it cannot undo the red fading at depth).
+AUTO_WHITE_BALANCE_LIMIT = 4.0
+
+
+def auto_white_balance_gains(developed: np.ndarray) -> np.ndarray:
+    """A camera's automatic white balance of one frame: the grey-world gains that bring the
+    frame's mean red and blue to its mean green, within :data:`AUTO_WHITE_BALANCE_LIMIT`.
+
+    Args:
+        developed: ``(H, W, 3)`` linear values of the frame.
+
+    Returns:
+        ``(3,)`` gains, green's 1.
+
+    Example:
+        >>> frame = np.ones((4, 4, 3)) * np.array([0.1, 0.4, 0.5])
+        >>> auto_white_balance_gains(frame).round(2).tolist()
+        [4.0, 1.0, 0.8]
+    """
+    means = np.maximum(np.asarray(developed, np.float64).reshape(-1, 3).mean(axis=0), 1e-9)
+    return np.clip(means[1] / means, 1.0 / AUTO_WHITE_BALANCE_LIMIT, AUTO_WHITE_BALANCE_LIMIT)
+
+
 def develop_jpeg(raw: np.ndarray, config: SensorConfig) -> np.ndarray:
     """The camera-like JPEG rendering of an RGGB mosaic, before 8-bit encoding.
 
@@ -194,11 +221,15 @@ def develop_jpeg(raw: np.ndarray, config: SensorConfig) -> np.ndarray:
 
     Returns:
         (H, W, 3) sRGB-encoded float32 in [0, 1]:
-        ``srgb(clip(jpeg_gain * normalise_raw(demosaic_bilinear(raw)), 0, 1))``.
+        ``srgb(clip(jpeg_gain * wb * normalise_raw(demosaic_bilinear(raw)), 0, 1))``, ``wb``
+        the frame's :func:`auto_white_balance_gains` where ``config.jpeg_white_balance`` is
+        ``auto``, else 1.
 
     Example::
 
         jpeg = develop_jpeg(capture_raw(signal, 400, config, rng), config)
     """
     developed = normalise_raw(demosaic_bilinear(raw), config)
+    if config.jpeg_white_balance == "auto":
+        developed = developed * auto_white_balance_gains(developed).astype(np.float32)
     return linear_to_srgb(np.clip(jpeg_gain(config) * developed, 0.0, 1.0))

@@ -75,8 +75,8 @@ class Settings:
     min_images: int = setting(3, help="fail if fewer usable images remain")
     stats_pixels: int = setting(100_000, help="pixels sampled per image for dataset statistics")
     images: str = setting(
-        "auto", help="image folder: auto (llff: images_wb; else the path or its one image "
-                     "subfolder), a name (images_4, DCIM/100GOPRO) or all (subfolders too)")
+        "auto", help="image folder: auto (llff: images_wb; simulated: raw; else the path or "
+                     "its one image subfolder), a name (images_4, DCIM/100GOPRO, jpeg) or all")
     warn_clipped_share: float = setting(
         0.1, help="warn about images with more than this share of clipped pixels")
     video_interval: float = setting(

@@ -17,6 +17,7 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -28,6 +29,7 @@ from seathru.io.textures import load_sample_textures
 from seathru.settings import setting
 from seathru.sim import dive
 from seathru.sim.dive import CameraPath
+from seathru.sim.sensor import SensorConfig
 from seathru.sim.water import WaterPreset, water_params
 
 log = logging.getLogger(__name__)
@@ -65,6 +67,9 @@ class Settings:
                                    "not depend on it)")
     test_every: int = setting(8, help="every n-th image (sorted names, starting with the "
                                       "first) is a test image (0 = none)")
+    jpeg_white_balance: Literal["none", "auto"] = setting(
+        "none", help="the camera JPEGs' white balance: none, or auto (the camera's, frame by "
+                     "frame, grey world: ingest.images=jpeg trains on them)")
 
     def dive_spec(self) -> dive.DiveSpec:
         """The resolved simulation (raises ValueError naming a bad setting)."""
@@ -73,7 +78,8 @@ class Settings:
         return dive.DiveSpec(views=self.views, width=self.width, height=self.height,
                              path=self.path, water=water, seed=self.seed, fov_deg=self.fov_deg,
                              supersample=self.supersample,
-                             seabed_amplitude=self.seabed_amplitude)
+                             seabed_amplitude=self.seabed_amplitude,
+                             sensor=SensorConfig(jpeg_white_balance=self.jpeg_white_balance))
 
     def validate(self) -> None:
         self.dive_spec()
