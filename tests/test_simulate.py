@@ -504,6 +504,11 @@ def test_dng_round_trip_through_rawpy(dive):
         focal_px, _ = focal_from_metadata({"focal_length_35mm": lens.focal_length_35mm},
                                           frame.width, frame.height)
         assert focal_px == pytest.approx(frame.fx, rel=0.02)
+        # the camera JPEG records the same exposure and lens, as a camera's does
+        jpeg, _ = read_exif(dive / "jpeg" / f"{name}.jpg")
+        assert (jpeg.exposure_time, jpeg.iso, jpeg.f_number, jpeg.focal_length_35mm) == \
+            pytest.approx((shot["exposure_time_s"], shot["iso"], shot["f_number"],
+                           lens.focal_length_35mm), rel=1e-6)
 
         with rawpy.imread(str(path)) as raw:
             mosaic = raw.raw_image_visible.astype(np.float64)

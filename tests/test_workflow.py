@@ -349,7 +349,8 @@ def test_each_source_reaches_its_images_and_poses(tmp_path):
                                      ("release", "llff", ""),
                                      ("llff4", "llff", "ingest.images=images_4"),
                                      ("ns", "nerfstudio", ""), ("cm", "colmap", ""),
-                                     ("sim", "simulated", "")):
+                                     ("sim", "simulated", ""),
+                                     ("sim_jpeg", "simulated", "ingest.images=jpeg")):
         folder = tmp_path / dataset
         folder.mkdir()
         rows.append(f"{dataset}\t{source}\t{'' if source == 'simulated' else folder}\t{options}")
@@ -378,6 +379,10 @@ def test_each_source_reaches_its_images_and_poses(tmp_path):
         assert value(argv("poses", dataset), "--source") == "colmap"
     assert value(argv("ingest", "dive_raw"), "--kind") == "raw"
     assert value(argv("ingest", "sim"), "--subdir") == "raw"
+    assert value(argv("ingest", "sim"), "--kind") == "raw"
+    # a simulated dive trained on its camera JPEGs (their kind detected: sRGB)
+    assert value(argv("ingest", "sim_jpeg"), "--subdir") == "jpeg"
+    assert "--kind" not in argv("ingest", "sim_jpeg")
 
 
 def test_paths_with_spaces_reach_every_step_whole(tmp_path):

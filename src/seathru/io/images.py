@@ -83,6 +83,34 @@ def write_8bit(path: str | os.PathLike, array: np.ndarray, jpeg_quality: int = 9
     _write_cv2(path, data, params)
 
 
+def write_camera_jpeg(path: str | os.PathLike, array: np.ndarray, quality: int, *,
+                      exposure_time_s: float, iso: int, f_number: float,
+                      focal_length_35mm: int | None = None) -> None:
+    """Write values in [0, 1] as an 8-bit JPEG with a camera's EXIF exposure (ExposureTime,
+    ISOSpeedRatings, FNumber, FocalLengthIn35mmFilm), atomically; the pixels as
+    :func:`write_8bit` encodes them."""
+    from PIL import Image
+    from PIL.TiffImagePlugin import IFDRational
+
+    data = np.round(np.clip(array, 0.0, 1.0) * 255.0).astype(np.uint8)
+    ok, encoded = cv2.imencode(".jpg", cv2.cvtColor(data, cv2.COLOR_RGB2BGR),
+                               [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise PipelineError(f"{path}: OpenCV could not encode the JPEG")
+    exif = Image.Exif()
+    details = exif.get_ifd(0x8769)   # the Exif IFD
+    details[0x829A] = IFDRational(exposure_time_s)
+    details[0x8827] = int(iso)
+    details[0x829D] = IFDRational(f_number)
+    if focal_length_35mm is not None:
+        details[0xA405] = int(focal_length_35mm)
+    payload = exif.tobytes()          # b"Exif\0\0" and the TIFF structure
+    segment = b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload
+    jpeg = encoded.tobytes()
+    with atomic_path(path) as tmp:
+        Path(tmp).write_bytes(jpeg[:2] + segment + jpeg[2:])   # APP1 right after the start
+
+
 def write_mask(path: str | os.PathLike, mask: np.ndarray) -> None:
     """Write a boolean validity mask as an 8-bit PNG (255 = valid)."""
     _write_cv2(path, np.where(mask, 255, 0).astype(np.uint8))

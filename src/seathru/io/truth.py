@@ -3,7 +3,8 @@
 Layout (``README`` below is written into every folder, with the dive's values)::
 
     raw/<name>.dng            camera raw: 16-bit RGGB mosaic, DNG 1.4 tags in the main IFD
-    jpeg/<name>.jpg           the same photo as an 8-bit sRGB JPEG (camera-like rendering)
+    jpeg/<name>.jpg           the same photo as an 8-bit sRGB JPEG (camera-like rendering,
+                              the exposure and lens in its EXIF as a camera records them)
     truth/clean/<name>.tiff   clean linear radiance J, float32 (H, W, 3)
     truth/water/<name>.tiff   linear water image I before the sensor, float32 (H, W, 3)
     truth/depth/<name>.tiff   range z in metres, float32 (H, W); +inf where open water
@@ -36,7 +37,7 @@ from seathru.geometry.intrinsics import focal_35mm_from_px
 from seathru.io.atomic import write_json, write_text
 from seathru.io.cameras import CameraSet, Frame, write_cameras
 from seathru.io.dng import write_dng
-from seathru.io.images import read_image, write_8bit, write_float_tiff
+from seathru.io.images import read_image, write_camera_jpeg, write_float_tiff
 from seathru.sim.dive import DivePlan, DiveSpec, SimulatedView
 from seathru.sim.sensor import Pinhole, SensorConfig, jpeg_gain
 
@@ -101,7 +102,10 @@ def write_view(root: Path, name: str, view: SimulatedView, sensor: SensorConfig,
               iso=exposure.iso, f_number=exposure.f_number, cfa_pattern=sensor.cfa_pattern,
               focal_length_35mm=round(focal_35mm_from_px(camera.fx, camera.width,
                                                          camera.height)))
-    write_8bit(root / "jpeg" / f"{name}.jpg", view.jpeg, JPEG_QUALITY)
+    write_camera_jpeg(root / "jpeg" / f"{name}.jpg", view.jpeg, JPEG_QUALITY,
+                      exposure_time_s=exposure.exposure_time_s, iso=exposure.iso,
+                      f_number=exposure.f_number, focal_length_35mm=round(focal_35mm_from_px(
+                          camera.fx, camera.width, camera.height)))
     for kind, image in zip(TRUTH_KINDS, (view.clean, view.water, view.range_m)):
         write_float_tiff(root / "truth" / kind / f"{name}.tiff", image)
 
@@ -204,7 +208,8 @@ millimetres, as cameras record it) are in the DNG's main IFD.
 
 The JPEG is the bilinearly demosaiced raw, normalised the same way, times one gain for
 the whole set (truth/sensor.json, `jpeg`), clipped and sRGB encoded, with {white_balance}:
-like a camera JPEG it keeps each image's exposure and noise.
+like a camera JPEG it keeps each image's exposure and noise, and its EXIF records the
+exposure and the 35 mm equivalent focal length.
 """
 
 
