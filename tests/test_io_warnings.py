@@ -83,6 +83,17 @@ def test_ingest_warnings_from_the_manifest():
     assert [w["code"] for w in quiet] == ["dataset_warning"]
 
 
+@pytest.mark.parametrize("kind, fields, warned", [
+    ("srgb", [], True), ("raw", [], True), ("srgb", ["exposure_time"], False),
+    ("linear", [], False)])   # linear images (the release's images_wb) come processed
+def test_camera_images_none_of_which_records_its_exposure_are_named(kind, fields, warned):
+    manifest = _manifest(clipped=(0.01, 0.02), image_warnings=([], []))
+    manifest["input"]["kind"] = kind
+    manifest["exposure"] = {"normalised": True, "fields_used": fields}
+    codes = [w["code"] for w in ingest_warnings(manifest, 0.1)]
+    assert ("no_exposure_metadata" in codes) == warned
+
+
 def _report(**changes):
     report = {"gate_passed": True, "posed_without_linear_image": [],
               "linear_images_without_pose": [], "unregistered": [], "total": 10}

@@ -326,6 +326,7 @@ def ingest_warnings(manifest: IngestManifest, clipped_share: float) -> list[Step
     """What the ingest step's user should look at, from its manifest: rejected files, frames the
     dataset lists that are missing, images whose clipped (invalid) share exceeds
     ``clipped_share``, grey images and curves decoded as sRGB in place of the one recorded,
+    camera images none of which records its exposure,
     the per-image warnings of the decoding that not every image has (those describe the
     dataset, e.g. no EXIF at all: the manifest says so) and the dataset warnings."""
     found: list[StepWarning] = []
@@ -356,6 +357,18 @@ def ingest_warnings(manifest: IngestManifest, clipped_share: float) -> list[Step
             f"exposure or drop them (threshold: ingest.warn_clipped_share)",
             images=clipped, threshold=clipped_share))
     found += _decoding_warnings(manifest["images"])
+    exposure, images = manifest.get("exposure") or {}, manifest["images"]
+    if exposure.get("normalised") and not exposure.get("fields_used") and len(images) > 1 \
+            and manifest["input"].get("kind") in ("srgb", "raw"):
+        found.append(step_warning(
+            "ingest", "no_exposure_metadata",
+            f"none of the {len(images)} images records its exposure (EXIF exposure time, ISO, "
+            f"f-number): they are taken as exposed alike, and a camera's automatic exposure "
+            f"varies between frames, which the model then learns as changes of the scene and "
+            f"of the water (the simulated survey's camera JPEGs, up to +-0.5 EV apart: "
+            f"held-out 19.6 dB against 28.4 dB with their EXIF, attenuation 19-29% off "
+            f"against 3-12%); export the photographs with their metadata, or shoot in manual "
+            f"exposure"))
     # a condition every image shares (no EXIF at all) describes the dataset, not an image
     common = set.intersection(*(set(image["warnings"]) for image in manifest["images"])) \
         if manifest["images"] else set()
