@@ -710,3 +710,17 @@ def test_brighter_near_open_water_warns_with_the_slope_beside_it():
         assert evaluation_warnings(summary) == []
     del part["near_open_water"]
     assert evaluation_warnings(summary) == [] and evaluation_warnings(None) == []
+
+
+def test_a_colour_cast_that_changes_between_frames_warns_with_its_spread():
+    summary = _summary("phone", 25.0)
+    summary.track_colour_slope = _track_slope(0.5)
+    summary.track_colour_slope["frame_colour"] = {
+        "spread": [0.150, 0.046], "noise": [0.001, 0.001], "varies": True, "threshold": 0.05,
+        "offsets": {"dive_0001": [0.02, -0.01], "dive_0009": [-0.31, 0.08]}}
+    [warning] = evaluation_warnings(summary)
+    assert warning["code"] == "colour_varies_between_frames"
+    assert "vary by 15%, 5% between frames" in warning["message"]
+    assert "dive_0009: -31%, +8%" in warning["message"] and "Shoot RAW" in warning["message"]
+    summary.track_colour_slope["frame_colour"].update(spread=[0.038, 0.038], varies=False)
+    assert evaluation_warnings(summary) == []                 # d3_reef's reading

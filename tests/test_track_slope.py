@@ -12,7 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seathru.eval.track_slope import (colour_slope_summary, far_tracks, slope_beside,
+from seathru.eval.track_slope import (colour_slope_summary, far_tracks, frame_colour_offsets,
+                                      slope_beside,
                                       slope_reduction, track_slope)
 from seathru.io import tracks as tracks_io
 from seathru.io.cameras import CameraSet, Frame
@@ -502,3 +503,42 @@ def test_windows_measure_the_distance_to_the_open_water_in_each_image(tmp_path, 
     assert beside["flat"]["reduction_overall"] == pytest.approx(1.0)
     windows.open_water_distance[:] = np.inf
     assert tracks_io._near_open_water(obs, windows) is None
+
+
+def _tracks_in_water(frames: int = 14, points: int = 60, seed: int = 0):
+    """Points seen by every frame at ranges 1-6 m through water (attenuation and backscatter
+    per channel: the backscatter bends log colour against range), with photo noise."""
+    rng = np.random.default_rng(seed)
+    surface = rng.uniform(0.1, 0.8, (points, 3))
+    ranges = rng.uniform(1.0, 6.0, (frames, points))
+    sigma, backscatter, veil = np.array([0.5, 0.2, 0.15]), np.array([0.4, 0.3, 0.25]), \
+        np.array([0.05, 0.2, 0.3])
+    z = ranges[..., None]
+    colours = surface[None] * np.exp(-sigma * z) + veil * (1 - np.exp(-backscatter * z))
+    colours *= rng.lognormal(0.0, 0.01, colours.shape)
+    ids = np.tile(np.arange(points), frames)
+    frame_of = np.repeat(np.arange(frames), points)
+    return ids, frame_of, ranges.reshape(-1), colours.reshape(-1, 3), rng
+
+
+def test_frame_colour_offsets_find_a_per_frame_white_balance_and_nothing_without_one():
+    ids, frame_of, ranges, colours, rng = _tracks_in_water()
+    plain = frame_colour_offsets(ids, frame_of, ranges, colours)
+    assert plain.spread.max() < 0.01 and not plain.varies
+    exposure = rng.lognormal(0.0, 0.3, 14)                   # the same in every channel
+    assert not frame_colour_offsets(ids, frame_of, ranges, colours * exposure[frame_of, None]
+                                    ).varies
+    balance = np.exp(rng.normal(0.0, 0.15, (14, 3)))         # red, green, blue gains a frame
+    cast = frame_colour_offsets(ids, frame_of, ranges, colours * balance[frame_of])
+    injected = np.log(balance[:, [0, 2]] / balance[:, [1]])
+    injected -= np.median(injected, axis=0)
+    assert cast.varies and list(cast.frames) == list(range(14))
+    for ratio in range(2):
+        assert np.corrcoef(cast.offsets[:, ratio], injected[:, ratio])[0, 1] > 0.99
+    np.testing.assert_allclose(cast.offsets, injected - np.median(injected - cast.offsets, 0),
+                               atol=0.03)   # the smooth range term takes a little of them
+
+
+def test_frame_colour_offsets_need_two_frames_with_observations():
+    ids, frame_of, ranges, colours, _ = _tracks_in_water(frames=2, points=8)
+    assert frame_colour_offsets(ids, frame_of, ranges, colours) is None

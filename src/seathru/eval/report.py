@@ -446,12 +446,40 @@ def evaluation_warnings(summary: EvaluationSummary | None) -> list[dict]:
     """``brighter_near_open_water`` where the evaluation found the same surfaces brighter in
     the frames that show them next to the open water (``track_colour_slope``'s
     ``near_open_water``, ``seathru.io.tracks``): light no water model makes (veiling glare in
-    the housing's port, a camera's local tone mapping), which the restored images keep.
+    the housing's port, a camera's local tone mapping), which the restored images keep; and
+    ``colour_varies_between_frames`` where the frames' colour casts differ beyond what the
+    points and their ranges explain (its ``frame_colour``: a camera's automatic white balance).
 
     Example::
 
         evaluation_warnings(summary)   # [] or [{"step": "evaluate", "code": ..., ...}]
     """
+    return _brighter_warning(summary) + _frame_colour_warning(summary)
+
+
+def _frame_colour_warning(summary: EvaluationSummary | None) -> list[dict]:
+    slope = summary.track_colour_slope if summary is not None else None
+    cast = slope.get("frame_colour") if isinstance(slope, dict) else None
+    if not isinstance(cast, dict) or not cast.get("varies"):
+        return []
+    spread = ", ".join(f"{100 * v:.0f}%" for v in cast.get("spread") or [])
+    offsets = cast.get("offsets") or {}
+    worst = max(offsets, key=lambda name: max(abs(v) for v in offsets[name]), default=None)
+    example = (f" ({worst}: {', '.join(f'{100 * v:+.0f}%' for v in offsets[worst])})"
+               if worst else "")
+    message = (f"the photographs' colour cast changes from frame to frame beyond what the "
+               f"points and their ranges explain: red and blue against green vary by {spread} "
+               f"between frames (robust spread; the most{example}), as a camera's automatic "
+               f"white balance makes them. No water model follows it, so the fitted water is "
+               f"off, possibly more than its intervals say (the simulated survey white-balanced "
+               f"frame by frame: attenuation up to 37% off, green's 22% unflagged). Shoot RAW, "
+               f"or set the white balance by hand for the dive.")
+    return [{"step": "evaluate", "code": "colour_varies_between_frames", "message": message,
+             "details": {"spread": cast.get("spread"), "noise": cast.get("noise"),
+                         "threshold": cast.get("threshold")}}]
+
+
+def _brighter_warning(summary: EvaluationSummary | None) -> list[dict]:
     part = _slope_part(summary.track_colour_slope if summary is not None else None,
                        "all_views")
     beside = part.get("near_open_water") if part is not None else None

@@ -260,3 +260,101 @@ def colour_slope_summary(track_ids: np.ndarray, ranges: np.ndarray, observed: np
 def _record(fit: TrackSlope) -> dict:
     return {"slope": fit.slope.tolist(), "stderr": fit.stderr.tolist(), "tracks": fit.tracks,
             "observations": fit.observations}
+
+
+#: A robust spread of the frames' colour offsets above this (log chroma, red or blue against
+#: green) is a colour cast that changes from frame to frame: 0.002-0.004 on the simulated survey
+#: from its DNGs or its camera JPEGs, 0.15 / 0.05 (R/G, B/G) on the same JPEGs white-balanced
+#: frame by frame, 0.04 / 0.04 on d3_reef (benchmarks/results/workflow_trials.md, session 38).
+FRAME_COLOUR_SPREAD = 0.05
+
+
+@dataclass(frozen=True)
+class FrameColour:
+    """Each frame's colour offset along the tracks, beyond what the points and their ranges
+    explain.
+
+    Attributes:
+        frames: (F,) the frame ids with an offset (at least ``min_observations`` each).
+        offsets: (F, 2) log red / green and log blue / green of each frame against the median
+            frame.
+        spread: (2,) robust standard deviation of the offsets (1.4826 x median absolute
+            deviation), per ratio.
+        noise: (2,) the median frame's standard error of its offset (robust residual spread /
+            sqrt of its observations): what the spread would be from noise alone.
+    """
+
+    frames: np.ndarray
+    offsets: np.ndarray
+    spread: np.ndarray
+    noise: np.ndarray
+
+    @property
+    def varies(self) -> bool:
+        """Whether the colour cast changes from frame to frame (:data:`FRAME_COLOUR_SPREAD`)."""
+        return bool(np.max(self.spread) > max(FRAME_COLOUR_SPREAD, 3 * float(np.max(self.noise))))
+
+
+def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.ndarray,
+                         colours: np.ndarray, *, floor: float = 1e-3, min_observations: int = 10,
+                         iterations: int = 5) -> FrameColour | None:
+    """Per-frame offsets of the colour ratios (log R/G, log B/G) along tracks: a camera's
+    automatic white balance, which sets each frame's gains from what the frame shows.
+
+    Water changes a point's colour with its range, and the same for every frame, so the fit
+    gives each track its own ratios, a common smooth change with range (``range / median`` and
+    its square: attenuation and the backscatter's bend) and each frame an offset, by
+    alternating least squares for the first two and the frame's median residual for the third
+    (a few points placed or matched badly do not move it); the offsets are taken against the
+    median frame. The ratios leave out what a frame's exposure changes in all channels alike.
+
+    Args:
+        track_ids, ranges: (N,) as for :func:`track_slope`.
+        frames: (N,) the frame each observation lies in (any integer ids).
+        colours: (N, 3) linear colour of the observations, R G B.
+        floor: colours are clipped below at ``floor`` (log of 0).
+        min_observations: frames with fewer observations get no offset.
+        iterations: alternations of the fit.
+
+    Returns:
+        :class:`FrameColour`, or None with fewer than two frames of ``min_observations``.
+
+    Example::
+
+        cast = frame_colour_offsets(ids, frame_of, ranges, rgb)
+        cast.varies, cast.spread    # e.g. True, [0.13, 0.04]
+    """
+    frames = np.asarray(frames)
+    logs = np.log(np.clip(np.asarray(colours, np.float64), floor, None))
+    ratios = np.stack([logs[:, 0] - logs[:, 1], logs[:, 2] - logs[:, 1]], axis=1)
+    frame_ids, frame_index = np.unique(frames, return_inverse=True)
+    counts = np.bincount(frame_index, minlength=len(frame_ids))
+    kept = counts >= min_observations
+    if kept.sum() < 2:
+        return None
+    _, track = np.unique(np.asarray(track_ids), return_inverse=True)
+    per_track = np.bincount(track).astype(np.float64)[:, None]
+    relative = np.asarray(ranges, np.float64) / np.median(ranges)
+    basis = np.stack([relative, relative ** 2], axis=1)
+
+    def track_means(values: np.ndarray) -> np.ndarray:
+        sums = np.zeros((len(per_track), values.shape[1]))
+        np.add.at(sums, track, values)
+        return (sums / per_track)[track]
+
+    centred_basis = basis - track_means(basis)
+    offsets = np.zeros((len(frame_ids), 2))
+    for _ in range(iterations):
+        target = ratios - offsets[frame_index]
+        coef, *_ = np.linalg.lstsq(centred_basis, target - track_means(target), rcond=None)
+        residual = ratios - basis @ coef
+        residual = residual - track_means(residual - offsets[frame_index])
+        offsets = np.zeros((len(frame_ids), 2))
+        for index in np.flatnonzero(kept):
+            offsets[index] = np.median(residual[frame_index == index], axis=0)
+        offsets[kept] -= np.median(offsets[kept], axis=0)
+    spread = 1.4826 * np.median(np.abs(offsets[kept] - np.median(offsets[kept], axis=0)), axis=0)
+    errors = residual - offsets[frame_index]
+    noise = np.median([1.4826 * np.median(np.abs(errors[frame_index == index]), axis=0)
+                       / np.sqrt(counts[index]) for index in np.flatnonzero(kept)], axis=0)
+    return FrameColour(frame_ids[kept], offsets[kept], spread, noise)

@@ -338,7 +338,10 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
     """``summary.json``'s ``track_colour_slope``: the within-track slope of log colour against
     range in the input images, in the restored renders and in the full renders (with water),
     per channel, and its reduction, each colour the mean over the observation's window
-    (:func:`window_samples`: the same samples in every image); with the render step's
+    (:func:`window_samples`: the same samples in every image), and ``frame_colour``: each
+    frame's colour offset beyond what the points and their ranges explain
+    (``seathru.eval.track_slope.frame_colour_offsets``: a camera's auto white balance); with
+    the render step's
     restored photographs in ``renders`` (:func:`restored_photo_colours`), each part also holds
     ``"photographs"``: the same summary of the input images and the restored photographs
     (``seathru.eval.track_slope.colour_slope_summary``). Over all views of the tracks, over
@@ -349,7 +352,8 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
     COLMAP model next to the camera file; ``{"source": "none", "reason": ...}`` without a
     trained model.
     """
-    from seathru.eval.track_slope import colour_slope_summary, far_tracks
+    from seathru.eval.track_slope import (FRAME_COLOUR_SPREAD, colour_slope_summary,
+                                          far_tracks, frame_colour_offsets)
 
     model_dir = (cameras.root or Path(".")) / SPARSE_DIR
     if not model_dir.is_dir():
@@ -399,6 +403,13 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
         beside = _near_open_water(obs, windows, restorations)
         if beside is not None:
             result["all_views"]["near_open_water"] = beside
+    cast = frame_colour_offsets(obs.track_ids, obs.frames, obs.ranges, observed)
+    if cast is not None:
+        result["frame_colour"] = {
+            "ratios": ["log red / green", "log blue / green"],
+            "spread": cast.spread.tolist(), "noise": cast.noise.tolist(),
+            "varies": cast.varies, "threshold": FRAME_COLOUR_SPREAD,
+            "offsets": {obs.names[int(f)]: o.tolist() for f, o in zip(cast.frames, cast.offsets)}}
     headline = result.get("all_views", {})
     if "reduction" in headline:
         log.info("track colour slope (log colour per unit range, R G B): input %s, full render "
