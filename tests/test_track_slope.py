@@ -542,3 +542,28 @@ def test_frame_colour_offsets_find_a_per_frame_white_balance_and_nothing_without
 def test_frame_colour_offsets_need_two_frames_with_observations():
     ids, frame_of, ranges, colours, _ = _tracks_in_water(frames=2, points=8)
     assert frame_colour_offsets(ids, frame_of, ranges, colours) is None
+
+
+def test_training_frames_are_brought_to_the_median_frames_colour_cast(tmp_path):
+    from seathru.io.training import read_frame_images
+
+    change = {"frame_colour": {"varies": True, "spread": [0.15, 0.05],
+                               "offsets": {"a": [0.2, -0.1], "b": [0.0, 0.0]}}}
+    gains = tracks_io.frame_colour_gains(change)
+    np.testing.assert_allclose(gains["a"], [np.exp(-0.2), 1.0, np.exp(0.1)])
+    assert tracks_io.frame_colour_gains({"frame_colour": {**change["frame_colour"],
+                                                          "varies": False}}) is None
+    assert tracks_io.frame_colour_gains(None) is None
+    photographed = np.random.default_rng(1).uniform(0.1, 0.9, (8, 10, 3)).astype(np.float32)
+    (tmp_path / "images").mkdir()
+    frames = []
+    for name in ("a", "b", "c"):
+        write_float_tiff(tmp_path / "images" / f"{name}.tiff", photographed)
+        frames.append(Frame(name=name, image=f"images/{name}.tiff", width=10, height=8,
+                            fx=9.0, fy=9.0, cx=5.0, cy=4.0, c2w=np.eye(4).tolist(), near=0.1,
+                            far=5.0, split="train"))
+    cameras = CameraSet(frames=frames, near=0.1, far=5.0, root=tmp_path)
+    (a, b, c), _ = read_frame_images(cameras, frames, gains=gains)
+    np.testing.assert_allclose(a, photographed * np.float32(gains["a"]), rtol=1e-6)
+    np.testing.assert_allclose(b, photographed)
+    np.testing.assert_allclose(c, photographed)        # no offset measured: as it is

@@ -15,6 +15,7 @@ restored images of the held-out views only, and few points are seen in two of th
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -352,8 +353,7 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
     COLMAP model next to the camera file; ``{"source": "none", "reason": ...}`` without a
     trained model.
     """
-    from seathru.eval.track_slope import (FRAME_COLOUR_SPREAD, colour_slope_summary,
-                                          far_tracks, frame_colour_offsets)
+    from seathru.eval.track_slope import colour_slope_summary, far_tracks, frame_colour_offsets
 
     model_dir = (cameras.root or Path(".")) / SPARSE_DIR
     if not model_dir.is_dir():
@@ -405,11 +405,7 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
             result["all_views"]["near_open_water"] = beside
     cast = frame_colour_offsets(obs.track_ids, obs.frames, obs.ranges, observed)
     if cast is not None:
-        result["frame_colour"] = {
-            "ratios": ["log red / green", "log blue / green"],
-            "spread": cast.spread.tolist(), "noise": cast.noise.tolist(),
-            "varies": cast.varies, "threshold": FRAME_COLOUR_SPREAD,
-            "offsets": {obs.names[int(f)]: o.tolist() for f, o in zip(cast.frames, cast.offsets)}}
+        result["frame_colour"] = _frame_colour_record(cast, obs.names)
     headline = result.get("all_views", {})
     if "reduction" in headline:
         log.info("track colour slope (log colour per unit range, R G B): input %s, full render "
@@ -472,10 +468,13 @@ def input_colour_change(cameras: CameraSet, max_points: int = 5000,
         ``{"tracks", "observations", "median_range", "slope", "stderr", "t",
         "change_over_median_range"}`` (per channel, log colour; the change is
         ``slope * median range``), with ``near_open_water`` (:func:`_glare_fit`) where asked
-        for and the frames show open water; None without a COLMAP model beside the camera
-        file or with fewer than :data:`MIN_TRACKS` tracks.
+        for and the frames show open water, and ``frame_colour``: each training frame's colour
+        cast beyond what the points and their ranges explain
+        (``seathru.eval.track_slope.frame_colour_offsets``; :func:`frame_colour_gains`); None
+        without a COLMAP model beside the camera file or with fewer than :data:`MIN_TRACKS`
+        tracks.
     """
-    from seathru.eval.track_slope import track_slope
+    from seathru.eval.track_slope import frame_colour_offsets, track_slope
 
     model_dir = (cameras.root or Path(".")) / SPARSE_DIR
     if not model_dir.is_dir():
@@ -500,7 +499,31 @@ def input_colour_change(cameras: CameraSet, max_points: int = 5000,
     glare = _glare_fit(cameras, obs, windows, train) if near_open_water else None
     if glare is not None:
         result["near_open_water"] = glare
+    cast = frame_colour_offsets(obs.track_ids[train], obs.frames[train], obs.ranges[train],
+                                windows.observed[train])
+    if cast is not None:
+        result["frame_colour"] = _frame_colour_record(cast, obs.names)
     return result
+
+
+def _frame_colour_record(cast, names: list[str]) -> dict:
+    """A ``seathru.eval.track_slope.FrameColour`` as JSON, offsets by frame name."""
+    from seathru.eval.track_slope import FRAME_COLOUR_SPREAD
+
+    return {"ratios": ["log red / green", "log blue / green"], "spread": cast.spread.tolist(),
+            "noise": cast.noise.tolist(), "varies": cast.varies,
+            "threshold": FRAME_COLOUR_SPREAD,
+            "offsets": {names[int(f)]: o.tolist() for f, o in zip(cast.frames, cast.offsets)}}
+
+
+def frame_colour_gains(track_change: dict | None) -> dict[str, list[float]] | None:
+    """Per frame name, the gains (R, G, B) that bring its colour cast to the median frame's,
+    from :func:`input_colour_change`'s ``frame_colour`` where the casts vary; else None."""
+    cast = (track_change or {}).get("frame_colour")
+    if not cast or not cast.get("varies"):
+        return None
+    return {name: [math.exp(-red), 1.0, math.exp(-blue)]
+            for name, (red, blue) in cast["offsets"].items()}
 
 
 def _glare_fit(cameras: CameraSet, obs: TrackObservations, windows: TrackWindows,

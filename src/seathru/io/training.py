@@ -32,16 +32,22 @@ LOG_COLUMNS = ("step", "wall_time_s", "loss", "train_psnr", "test_psnr")
 CHECKPOINT_NAME = "checkpoint.pt"
 
 
-def read_frame_images(cameras: CameraSet, frames, glare: GlareCorrection | None = None
+def read_frame_images(cameras: CameraSet, frames, glare: GlareCorrection | None = None,
+                      gains: dict[str, list[float]] | None = None
                       ) -> tuple[list[np.ndarray], list[np.ndarray | None]]:
     """Linear RGB images (H, W, 3) and validity masks (H, W) or None of ``frames``, checked
     against the camera file's sizes; with ``glare`` (a
     ``seathru.radiometry.glare.GlareCorrection``), each image without it
-    (:func:`without_glare`)."""
+    (:func:`without_glare`); with ``gains`` (R, G, B by frame name: its colour cast brought to
+    the median frame's, ``seathru.io.tracks.frame_colour_gains``), each named image times its
+    gains."""
     images, masks = [], []
     for frame in frames:
         image, mask = read_frame(cameras, frame)
-        images.append(image if glare is None else without_glare(image, mask, glare))
+        image = image if glare is None else without_glare(image, mask, glare)
+        if gains and frame.name in gains:
+            image = (image * np.asarray(gains[frame.name], np.float32)).astype(image.dtype)
+        images.append(image)
         masks.append(mask)
     return images, masks
 
@@ -79,22 +85,38 @@ class TrainingInputs:
     test_masks: list[np.ndarray | None]
     track_change: dict | None     # seathru.io.tracks.input_colour_change
     glare: GlareCorrection | None  # the correction applied to every image, or None
+    frame_gains: dict[str, list[float]] | None = None   # the training frames' colour gains
+
+    def corrections(self) -> dict:
+        """``selection.json``'s record of what the photographs were trained without."""
+        cast = (self.track_change or {}).get("frame_colour")
+        return {"glare_correction": self.glare and self.glare.to_dict(),
+                "frame_colour_correction": None if not self.frame_gains else {
+                    "gains": self.frame_gains, "spread": cast and cast.get("spread")}}
 
 
 def read_training_inputs(cameras: CameraSet, train_frames, test_frames,
-                         glare: str = "auto") -> TrainingInputs:
+                         glare: str = "auto", frame_colour: str = "auto") -> TrainingInputs:
     """The frames' images and masks, the track evidence of water and, with ``glare`` auto,
-    the glare correction it supports, applied to every image (``TrainConfig.glare``)."""
-    from seathru.io.tracks import glare_correction, input_colour_change
+    the glare correction it supports, applied to every image (``TrainConfig.glare``); with
+    ``frame_colour`` auto, where the training frames' colour casts vary, each training image
+    brought to the median frame's (``TrainConfig.frame_colour``; the held-out images stay as
+    they are: the evaluation measures against the photographs)."""
+    from seathru.io.tracks import frame_colour_gains, glare_correction, input_colour_change
 
     track_change = input_colour_change(cameras, near_open_water=glare == "auto")
     correction = glare_correction(track_change)
     if correction is not None:
         log.info("the photographs are brighter next to the open water (%+.2f log colour per "
                  "unit of log distance); training on them without it", correction.coefficient)
-    return TrainingInputs(*read_frame_images(cameras, train_frames, correction),
+    gains = frame_colour_gains(track_change) if frame_colour == "auto" else None
+    if gains:
+        log.info("the training photographs' colour cast varies from frame to frame (robust "
+                 "spread %s of log red / green, blue / green); training on each brought to "
+                 "the median frame's", track_change["frame_colour"]["spread"])
+    return TrainingInputs(*read_frame_images(cameras, train_frames, correction, gains),
                           *read_frame_images(cameras, test_frames, correction), track_change,
-                          correction)
+                          correction, gains)
 
 
 def without_glare(image: np.ndarray, mask: np.ndarray | None,

@@ -316,6 +316,12 @@ class TrainConfig:
                      "veiling glare in the port or local tone mapping, not the water), train "
                      "on the photographs divided by that brightening "
                      "(seathru.radiometry.glare); off: the photographs as they are")
+    frame_colour: Literal["auto", "off"] = setting(
+        "auto", help="auto: where the training photographs' colour casts differ from frame to "
+                     "frame beyond what the points and their ranges explain along COLMAP "
+                     "tracks (a camera's auto white balance), train on each brought to the "
+                     "median frame's (seathru.eval.track_slope.frame_colour_offsets); off: as "
+                     "they are")
     steps: int = setting(0, help="maximum optimisation steps; 0: no step limit under a time "
                                  "budget (max_minutes decides), 6000 without one")
     passes: float = setting(0.0, help="training budget as passes over the training pixels: "

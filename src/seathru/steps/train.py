@@ -78,7 +78,8 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     if not test_frames:
         log.warning("%s: no test frames; the log has no held-out PSNR", cameras_path)
     started = time.perf_counter()
-    inputs = read_training_inputs(cameras, train_frames, test_frames, config.glare)
+    inputs = read_training_inputs(cameras, train_frames, test_frames, config.glare,
+                                  config.frame_colour)
     snapshots = QualitySnapshots.from_full_images(test_frames, inputs.test_images,
                                                   config.quality_snapshot_downscale)
     try:
@@ -144,15 +145,13 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
     write_water(out / "water.json", report)
     warnings = [step_warning("train", "water_undetermined", report.undetermined_message(),
                              parameters=report.undetermined)] if report.undetermined else []
-    for warning in warnings:
-        log.warning("%s", warning["message"])
-    write_warnings(out / "warnings.json", warnings)
+    write_warnings(out / "warnings.json", warnings, log)
     write_log_csv(out / "train_log.csv", result.log)
     write_snapshots(out, snapshots.rows, snapshots.renders, snapshots.downscale)
     write_json(out / "selection.json", {**result.selection, "final_mode": model.medium.mode,
                                          "water_refits": trainer.water_refits,
                                          "view_dependent_colour": trainer.view_selection,
-                                         "glare_correction": export["glare"],
+                                         **inputs.corrections(),
                                          "capacity": prepared.capacity,
                                          "far_factor": model.far_bound})
     test_text = "n/a" if result.final_test_psnr is None else f"{result.final_test_psnr:.2f} dB"
