@@ -467,16 +467,24 @@ def _frame_colour_warning(summary: EvaluationSummary | None) -> list[dict]:
     worst = max(offsets, key=lambda name: max(abs(v) for v in offsets[name]), default=None)
     example = (f" ({worst}: {', '.join(f'{100 * v:+.0f}%' for v in offsets[worst])})"
                if worst else "")
+    corrected = isinstance((summary.medium_selection or {}).get("frame_colour_correction"),
+                           dict)
+    trained = ("The model was trained on the photographs brought to the median frame's cast "
+               "(train.frame_colour auto), which undoes most of it but not all (the simulated "
+               "survey white-balanced frame by frame: the water up to 25% off, every interval "
+               "holding the truth, against 42% off and three intervals missing it without)"
+               if corrected else
+               "No water model follows it, so the fitted water is off, possibly more than its "
+               "intervals say (the simulated survey white-balanced frame by frame: up to 42% "
+               "off, green attenuation 22% unflagged)")
     message = (f"the photographs' colour cast changes from frame to frame beyond what the "
                f"points and their ranges explain: red and blue against green vary by {spread} "
                f"between frames (robust spread; the most{example}), as a camera's automatic "
-               f"white balance makes them. No water model follows it, so the fitted water is "
-               f"off, possibly more than its intervals say (the simulated survey white-balanced "
-               f"frame by frame: attenuation up to 37% off, green's 22% unflagged). Shoot RAW, "
-               f"or set the white balance by hand for the dive.")
+               f"white balance makes them. {trained}. Shoot RAW, or set the white balance by "
+               f"hand for the dive.")
     return [{"step": "evaluate", "code": "colour_varies_between_frames", "message": message,
              "details": {"spread": cast.get("spread"), "noise": cast.get("noise"),
-                         "threshold": cast.get("threshold")}}]
+                         "threshold": cast.get("threshold"), "corrected": corrected}}]
 
 
 def _brighter_warning(summary: EvaluationSummary | None) -> list[dict]:
