@@ -1,5 +1,6 @@
-"""Decoding camera images to linear RGB: RAW through rawpy/LibRaw, JPEG/PNG/TIFF through OpenCV and
-tifffile, plus the EXIF exposure metadata ingest needs.
+"""Decoding camera images to linear RGB: RAW through rawpy/LibRaw, JPEG/PNG/TIFF/WebP through
+OpenCV and tifffile, HEIC through pi-heif (libheif), each encoded file by the curve its colour
+profile records (``seathru.io.icc``), plus the EXIF exposure metadata ingest needs.
 
 RAW decoding (``decode_raw``) is LibRaw with every automatic adjustment off, so the output is the
 demosaiced sensor signal ``(raw - black_c) / (white - black_c)`` per CFA channel c:
