@@ -721,7 +721,8 @@ def test_a_colour_cast_that_changes_between_frames_warns_with_its_spread():
     [warning] = evaluation_warnings(summary)
     assert warning["code"] == "colour_varies_between_frames"
     assert "vary by 15%, 5% between frames" in warning["message"]
-    assert "dive_0009: -31%, +8%" in warning["message"] and "Shoot RAW" in warning["message"]
+    assert "(robust spread; farthest from the median frame: dive_0009, -31%, +8%)" in \
+        warning["message"] and "Shoot RAW" in warning["message"]
     assert "No water model follows it" in warning["message"]
     summary.medium_selection = {"frame_colour_correction": {"gains": {}, "spread": [0.13, 0.04]}}
     [warning] = evaluation_warnings(summary)

@@ -465,8 +465,8 @@ def _frame_colour_warning(summary: EvaluationSummary | None) -> list[dict]:
     spread = ", ".join(f"{100 * v:.0f}%" for v in cast.get("spread") or [])
     offsets = cast.get("offsets") or {}
     worst = max(offsets, key=lambda name: max(abs(v) for v in offsets[name]), default=None)
-    example = (f" ({worst}: {', '.join(f'{100 * v:+.0f}%' for v in offsets[worst])})"
-               if worst else "")
+    example = (f"; farthest from the median frame: {worst}, "
+               f"{', '.join(f'{100 * v:+.0f}%' for v in offsets[worst])}" if worst else "")
     corrected = isinstance((summary.medium_selection or {}).get("frame_colour_correction"),
                            dict)
     trained = ("The model was trained on the photographs brought to the median frame's cast "
@@ -479,7 +479,7 @@ def _frame_colour_warning(summary: EvaluationSummary | None) -> list[dict]:
                "off, green attenuation 22% unflagged)")
     message = (f"the photographs' colour cast changes from frame to frame beyond what the "
                f"points and their ranges explain: red and blue against green vary by {spread} "
-               f"between frames (robust spread; the most{example}), as a camera's automatic "
+               f"between frames (robust spread{example}), as a camera's automatic "
                f"white balance makes them. {trained}. Shoot RAW, or set the white balance by "
                f"hand for the dive.")
     return [{"step": "evaluate", "code": "colour_varies_between_frames", "message": message,
