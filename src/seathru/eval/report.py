@@ -471,12 +471,12 @@ def _frame_colour_warning(summary: EvaluationSummary | None) -> list[dict]:
                            dict)
     trained = ("The model was trained on the photographs brought to the median frame's cast "
                "(train.frame_colour auto), which undoes most of it but not all (the simulated "
-               "survey white-balanced frame by frame: the water up to 25% off, every interval "
-               "holding the truth, against 42% off and three intervals missing it without)"
+               "survey white-balanced frame by frame: the water up to 23% off, every interval "
+               "holding the truth, against 43% off and three intervals missing it without)"
                if corrected else
                "No water model follows it, so the fitted water is off, possibly more than its "
-               "intervals say (the simulated survey white-balanced frame by frame: up to 42% "
-               "off, green attenuation 22% unflagged)")
+               "intervals say (the simulated survey white-balanced frame by frame: up to 43% "
+               "off, three intervals missing the truth)")
     message = (f"the photographs' colour cast changes from frame to frame beyond what the "
                f"points and their ranges explain: red and blue against green vary by {spread} "
                f"between frames (robust spread{example}), as a camera's automatic "
