@@ -29,6 +29,7 @@ loads, and ``seathru --help`` stays fast.
 
 from __future__ import annotations
 
+import functools
 import io
 import logging
 import math
@@ -363,7 +364,18 @@ def recorded_curve(path: str | Path) -> RecordedCurve | None:
         >>> recorded_curve("images_wb/0001.png")  # doctest: +SKIP
         RecordedCurve(encoding='gamma 1.8', source="ICC profile 'ProPhoto RGB'")
     """
-    path = Path(path)
+    try:
+        stat = Path(path).stat()
+    except OSError:
+        return None
+    return _recorded_curve(str(path), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=4096)
+def _recorded_curve(name: str, mtime_ns: int, size: int) -> RecordedCurve | None:
+    """:func:`recorded_curve`, once per file version: listing a folder asks each file's kind
+    several times (subfolder counts, selection) and decoding asks again."""
+    path = Path(name)
     suffix = path.suffix.lower()
     try:
         if suffix in (".tif", ".tiff"):
