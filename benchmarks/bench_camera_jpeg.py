@@ -10,7 +10,8 @@ against the clean truth (and on covered pixels), the restored photographs, the f
 signed error per channel (``?``: flagged as not determined; ``!``: its interval misses the
 truth), and the photographs' colour casts from frame to frame along the COLMAP tracks (the
 evaluate step's ``track_colour_slope.frame_colour``). ``--summarise-only`` tabulates a finished
-``--work``.
+``--work``. Where ``../shared/data/d3_reef`` is present its real frames run too (row
+``reef``: no truth, so only the held-out PSNR and the frame colour).
 """
 
 from __future__ import annotations
@@ -26,9 +27,10 @@ import sys
 import time
 from pathlib import Path
 
-from machine import cpu_name, load_average
+from machine import footer, load_average
 
 REPO = Path(__file__).resolve().parents[1]
+REEF = REPO.parent / "shared" / "data" / "d3_reef"
 OUT = REPO / "benchmarks" / "results" / "camera_jpeg.md"
 JPEG = "ingest.images=jpeg"
 AUTO_BALANCE = "simulate.jpeg_white_balance=auto"
@@ -38,8 +40,6 @@ ARMS = {
     "jpeg_awb": f"{JPEG}; {AUTO_BALANCE}",
     "jpeg_awb_uncorrected": f"{JPEG}; {AUTO_BALANCE}; train.frame_colour=off",
 }
-METRICS = ("psnr_linear", "restored_psnr_linear", "restored_psnr_linear_covered",
-           "photo_restored_psnr_linear")
 
 
 def run_workflow(work: Path, cores: int) -> None:
@@ -47,6 +47,8 @@ def run_workflow(work: Path, cores: int) -> None:
     shutil.copy(REPO / "config" / "config.yaml", work / "config" / "config.yaml")
     rows = ["dataset\tsource\tpath\toptions\tsweep"]
     rows += [f"{name}\tsimulated\t\t{options}\t" for name, options in ARMS.items()]
+    if REEF.is_dir():
+        rows.append(f"reef\timages\t{REEF}\t\t")
     (work / "config" / "datasets.tsv").write_text("\n".join(rows) + "\n")
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
     subprocess.run([sys.executable, "-m", "snakemake", "--snakefile",
@@ -68,21 +70,26 @@ def _water_cells(water: dict) -> list[str]:
     return cells
 
 
-def arm_row(work: Path, name: str) -> str:
+def arm_row(work: Path, name: str, options: str) -> str:
     root = work / "results" / name
     summary_path = root / "evaluate" / "summary.json"
     if not summary_path.is_file():
-        return f"| {name} | `{ARMS[name]}` | failed (see {work}/logs/{name}) |" + " |" * 8
+        return f"| {name} | `{options}` | failed (see {work}/logs/{name}) |" + " |" * 8
     summary = json.loads(summary_path.read_text())
     rows = list(csv.DictReader((root / "evaluate" / "metrics.csv").open()))
-    means = {key: statistics.mean(float(row[key]) for row in rows) for key in METRICS}
+
+    def mean(key: str) -> str:
+        values = [float(row[key]) for row in rows if row.get(key)]
+        return f"{statistics.mean(values):.2f}" if values else "-"
+
     cast = (summary.get("track_colour_slope") or {}).get("frame_colour") or {}
     spread = ", ".join(f"{v:.3f}" for v in cast.get("spread") or []) or "-"
     corrected = (summary.get("medium_selection") or {}).get("frame_colour_correction")
-    return (f"| {name} | `{ARMS[name] or '(the DNGs)'}` | {means['psnr_linear']:.2f} | "
-            f"{means['restored_psnr_linear']:.2f} ({means['restored_psnr_linear_covered']:.2f}) "
-            f"| {means['photo_restored_psnr_linear']:.2f} | "
-            + " | ".join(_water_cells(summary["truth"]["water"]))
+    water = (summary.get("truth") or {}).get("water")
+    return (f"| {name} | `{options}` | {mean('psnr_linear')} | "
+            f"{mean('restored_psnr_linear')} ({mean('restored_psnr_linear_covered')}) "
+            f"| {mean('photo_restored_psnr_linear')} | "
+            + " | ".join(_water_cells(water) if water else ["-"] * 3)
             + f" | {spread} | {'yes' if corrected else 'no'} |")
 
 
@@ -93,10 +100,12 @@ def main() -> None:
     parser.add_argument("--summarise-only", action="store_true")
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
-    load_before, start = load_average(), time.perf_counter()
+    load_before, start = load_average(), time.time()
     if not args.summarise_only:
         run_workflow(args.work, args.cores)
-    minutes = (time.perf_counter() - start) / 60
+    arms = {name: options or "(the DNGs)" for name, options in ARMS.items()}
+    if (args.work / "results" / "reef").is_dir():
+        arms["reef"] = f"images: {REEF.name}, the real frames"
     lines = [
         "# Camera JPEGs and their white balance against the DNGs "
         "(`benchmarks/bench_camera_jpeg.py`)", "",
@@ -110,9 +119,8 @@ def main() -> None:
         "| arm | options | held-out PSNR | restored render (covered) | restored photographs "
         "| `sigma_attn` | `sigma_bs` | `c_med` | frame colour | corrected |",
         "|---|---|---|---|---|---|---|---|---|---|",
-        *(arm_row(args.work, name) for name in ARMS), "",
-        f"Machine: {cpu_name()}; load before {load_before}; "
-        f"{time.strftime('%Y-%m-%d')}; {minutes:.1f} min in all.",
+        *(arm_row(args.work, name, options) for name, options in arms.items()), "",
+        footer(load_before, start),
     ]
     args.out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

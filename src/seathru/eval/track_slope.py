@@ -265,7 +265,7 @@ def _record(fit: TrackSlope) -> dict:
 #: A robust spread of the frames' colour offsets above this (log chroma, red or blue against
 #: green) is a colour cast that changes from frame to frame: 0.002-0.004 on the simulated survey
 #: from its DNGs or its camera JPEGs, 0.15 / 0.05 (R/G, B/G) on the same JPEGs white-balanced
-#: frame by frame, 0.04 / 0.04 on d3_reef (benchmarks/results/workflow_trials.md, session 38).
+#: frame by frame, 0.04 / 0.03 on d3_reef (benchmarks/results/camera_jpeg.md).
 FRAME_COLOUR_SPREAD = 0.05
 
 

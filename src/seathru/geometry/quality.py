@@ -297,7 +297,8 @@ FEW_IMAGES = 10
 STILL_SHIFT = 0.01
 
 #: From this share of the verified pairs related by a homography alone on, the camera turned
-#: about one point or the scene is flat (a panning tripod: every pair; d3_reef: 1 of 63).
+#: about one point or the scene is flat (a panning tripod: every pair; d3_reef: 1 of 63,
+#: a one-off count on its exhaustive matches, benchmarks/results/workflow_trials.md).
 HOMOGRAPHY_SHARE = 0.9
 
 
