@@ -282,14 +282,12 @@ class FrameColour:
             deviation), per ratio.
         noise: (2,) the median frame's standard error of its offset (robust residual spread /
             sqrt of its observations): what the spread would be from noise alone.
-        open_water_frames: how many of the frames' open water entered the fit.
     """
 
     frames: np.ndarray
     offsets: np.ndarray
     spread: np.ndarray
     noise: np.ndarray
-    open_water_frames: int = 0
 
     @property
     def varies(self) -> bool:
@@ -297,20 +295,13 @@ class FrameColour:
         return bool(np.max(self.spread) > max(FRAME_COLOUR_SPREAD, 3 * float(np.max(self.noise))))
 
 
-#: Weight of a frame's open-water colour in :func:`frame_colour_offsets`, as a share of the
-#: frame's track observations: enough to hold the offsets' drift along the camera path (which
-#: the range term can mimic), little enough that tracks outvote a frame whose open water is
-#: mixed with far seabed.
-OPEN_WATER_WEIGHT = 0.2
 #: Unknowns of the range term in frame_colour_offsets' equations, before the offsets.
 RANGE_TERMS = 4
 
 
 def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.ndarray,
-                         colours: np.ndarray, *, open_water: np.ndarray | None = None,
-                         open_water_weight: float = OPEN_WATER_WEIGHT, floor: float = 1e-3,
-                         min_observations: int = 10, iterations: int = 6,
-                         huber: float = 1.345) -> FrameColour | None:
+                         colours: np.ndarray, *, floor: float = 1e-3, min_observations: int = 10,
+                         iterations: int = 6, huber: float = 1.345) -> FrameColour | None:
     """Per-frame offsets of the colour ratios (log R/G, log B/G) along tracks: a camera's
     automatic white balance, which sets each frame's gains from what the frame shows.
 
@@ -318,21 +309,16 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
     observation's ratio is fitted as its track's own ratio, a smooth change with range
     (``range / median`` and its square: attenuation and the backscatter's bend, each also in
     proportion to the track's own ratio, without its frames' offsets: a point moves towards
-    the water's colour the faster the further it lies from it) and its frame's offset; a
-    frame's open water, where given, is the water's one colour plus the frame's offset,
-    weighted as ``open_water_weight`` times the frame's observations. Solved exactly
-    (weighted least squares within tracks; the normal equations have one unknown per frame),
-    with Huber weights (``huber`` robust standard deviations) so that a few points placed or
-    matched badly do not move it; the offsets are taken against the median frame. The ratios
-    leave out what a frame's exposure changes in all channels alike.
+    the water's colour the faster the further it lies from it) and its frame's offset. Solved
+    exactly (weighted least squares within tracks; the normal equations have one unknown per
+    frame), with Huber weights (``huber`` robust standard deviations) so that a few points
+    placed or matched badly do not move it; the offsets are taken against the median frame.
+    The ratios leave out what a frame's exposure changes in all channels alike.
 
     Args:
         track_ids, ranges: (N,) as for :func:`track_slope`.
-        frames: (N,) the frame each observation lies in (integer ids, at least 0).
+        frames: (N,) the frame each observation lies in (any integer ids).
         colours: (N, 3) linear colour of the observations, R G B.
-        open_water: (M, 3) linear colour of the open water in frame id m (its pixels'
-            median), NaN where a frame shows none; M larger than every id in ``frames``.
-        open_water_weight: see above (:data:`OPEN_WATER_WEIGHT`).
         floor: colours are clipped below at ``floor`` (log of 0).
         min_observations: frames with fewer observations get no offset.
         iterations: rounds of reweighting (and of the tracks' own ratios).
@@ -343,7 +329,7 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
 
     Example::
 
-        cast = frame_colour_offsets(ids, frame_of, ranges, rgb, open_water=water_rgb)
+        cast = frame_colour_offsets(ids, frame_of, ranges, rgb)
         cast.varies, cast.spread    # e.g. True, [0.13, 0.04]
     """
     from scipy import sparse
@@ -372,40 +358,32 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
     one_hot = sparse.csr_matrix((np.ones(len(rows)), (rows, columns)), shape=(len(rows), count))
     mean_of_track = sparse.csr_matrix((1.0 / per_track[track], (track, rows)))
     in_track = sparse.csr_matrix((np.ones(len(rows)), (rows, track)))
-    # unknowns: the range term's coefficients, one offset per frame, the open water's ratio
+    # unknowns: the range term's coefficients, then one offset per frame
+    offset_columns = one_hot - in_track @ (mean_of_track @ one_hot)
     target = centred(ratios)
     own = ratios - target                  # each observation's track's mean ratios
-    offset_columns = one_hot - in_track @ (mean_of_track @ one_hot)
-    water_rows, water_target, water_weight = _open_water_rows(
-        open_water, frame_ids[kept], counts[kept], open_water_weight, floor)
     offsets, residual = np.zeros((count, 2)), np.zeros_like(target)
     for ratio in range(2):
-        # a point's ratio moves with range towards the water's, faster the further it lies
-        # from it: the range term's slope and bend depend on the track's own ratio
         intrinsic = own[:, ratio]
-        weights, water_weights = np.ones(len(rows)), np.ones(len(water_target))
+        weights = np.ones(len(rows))
         for _ in range(iterations):
             level = intrinsic - np.median(intrinsic)
             design = sparse.hstack([
                 centred(np.stack([relative, relative ** 2, level * relative,
                                   level * relative ** 2], axis=1)),
-                offset_columns, sparse.csr_matrix((len(rows), 1))]).tocsr()
-            solution = _weighted_solve(design, target[:, ratio], weights, water_rows,
-                                       water_target[:, ratio], water_weight * water_weights)
+                offset_columns]).tocsr()
+            solution = _weighted_solve(design, target[:, ratio], weights)
             residual[:, ratio] = target[:, ratio] - design @ solution
             weights = _huber_weights(residual[:, ratio], huber)
-            if len(water_target):
-                water_weights = _huber_weights(
-                    water_target[:, ratio] - water_rows @ solution, huber, minimum_scale=0.01)
             # the track's own ratio without its frames' offsets
             shifted = ratios[:, ratio] - solution[RANGE_TERMS + columns]
             intrinsic = shifted - centred(shifted[:, None])[:, 0]
-        offsets[:, ratio] = solution[RANGE_TERMS:RANGE_TERMS + count]
+        offsets[:, ratio] = solution[RANGE_TERMS:]
     offsets -= np.median(offsets, axis=0)
     spread = 1.4826 * np.median(np.abs(offsets - np.median(offsets, axis=0)), axis=0)
     noise = np.median([1.4826 * np.median(np.abs(residual[columns == k]), axis=0)
                        / np.sqrt(counts[kept[k]]) for k in range(count)], axis=0)
-    return FrameColour(frame_ids[kept], offsets, spread, noise, len(water_target))
+    return FrameColour(frame_ids[kept], offsets, spread, noise)
 
 
 def _log_ratios(colours: np.ndarray, floor: float) -> np.ndarray:
@@ -414,47 +392,16 @@ def _log_ratios(colours: np.ndarray, floor: float) -> np.ndarray:
     return np.stack([logs[:, 0] - logs[:, 1], logs[:, 2] - logs[:, 1]], axis=1)
 
 
-def _open_water_rows(open_water: np.ndarray | None, frame_ids: np.ndarray, counts: np.ndarray,
-                     share: float, floor: float):
-    """The open-water equations of :func:`frame_colour_offsets`: rows over its unknowns (range
-    term, offsets, the water's ratio), their targets (K, 2) and weights (K,)."""
-    from scipy import sparse
-
-    width = RANGE_TERMS + len(frame_ids) + 1
-    if open_water is None or share <= 0:
-        return sparse.csr_matrix((0, width)), np.zeros((0, 2)), np.zeros(0)
-    open_water = np.asarray(open_water, np.float64)
-    inside = frame_ids < len(open_water)
-    present = np.zeros(len(frame_ids), bool)
-    present[inside] = np.isfinite(open_water[frame_ids[inside]]).all(axis=1)
-    which = np.flatnonzero(present)
-    rows = np.arange(len(which))
-    matrix = sparse.csr_matrix((np.ones(2 * len(which)),
-                                (np.r_[rows, rows], np.r_[RANGE_TERMS + which, np.full(len(which),
-                                                                             width - 1)])),
-                               shape=(len(which), width))
-    return (matrix, _log_ratios(open_water[frame_ids[which]], floor),
-            share * counts[which].astype(np.float64))
-
-
-def _weighted_solve(design, target: np.ndarray, weights: np.ndarray, water_rows,
-                    water_target: np.ndarray, water_weights: np.ndarray) -> np.ndarray:
-    """The weighted least-squares solution over both sets of rows, offsets summing to zero
-    (the rows fix them only up to a common shift)."""
+def _weighted_solve(design, target: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The weighted least-squares solution, the offsets summing to zero (the rows, within
+    tracks, fix them only up to a common shift)."""
     from scipy import sparse
 
     normal = (design.T @ sparse.diags(weights) @ design).toarray()
-    right = design.T @ (weights * target)
-    if len(water_target):
-        normal += (water_rows.T @ sparse.diags(water_weights) @ water_rows).toarray()
-        right += water_rows.T @ (water_weights * water_target)
     gauge = np.zeros(normal.shape[0])
-    gauge[RANGE_TERMS:-1] = 1.0
-    scale = max(float(np.trace(normal)) / len(gauge), 1e-12)
-    normal += scale * np.outer(gauge, gauge)
-    if not len(water_target):
-        normal[-1, -1] += scale            # no open water: its ratio is not an unknown
-    return np.linalg.lstsq(normal, right, rcond=None)[0]
+    gauge[RANGE_TERMS:] = 1.0
+    normal += max(float(np.trace(normal)) / len(gauge), 1e-12) * np.outer(gauge, gauge)
+    return np.linalg.lstsq(normal, design.T @ (weights * target), rcond=None)[0]
 
 
 def _huber_weights(residual: np.ndarray, threshold: float, minimum_scale: float = 1e-9

@@ -40,8 +40,6 @@ WINDOW_GRID = 5
 
 SPARSE_DIR = "sparse"
 MIN_TRACKS = 20     # fewer tracks: no slope is reported
-# A frame's open water counts for its colour cast where it covers this share of the valid pixels.
-MIN_OPEN_WATER_SHARE = 0.01
 
 
 @dataclass
@@ -191,17 +189,12 @@ class TrackWindows:
     # (N,) pixels from the observation to the nearest open water in its input image
     # (seathru.radiometry.open_water), inf in a frame that shows none; None unless asked for
     open_water_distance: np.ndarray | None = None
-    # (F, 3) each frame's open water, the median linear colour of its open-water pixels, NaN
-    # where it shows too little (MIN_OPEN_WATER_SHARE) or has no observation; None unless
-    # asked for
-    open_water_colour: np.ndarray | None = None
 
 
 def track_windows(cameras: CameraSet, obs: TrackObservations, window: float = TRACK_WINDOW,
                   grid: int = WINDOW_GRID, open_water: bool = False) -> TrackWindows:
     """The observations' windows (:func:`window_samples`) and the input's colour over each;
-    with ``open_water``, also each observation's distance to the open water in its image and
-    each frame's open-water colour.
+    with ``open_water``, also each observation's distance to the open water in its image.
 
     A sample counts where the input image is finite and inside the frame's mask at all four
     pixels it interpolates (undistortion leaves invalid borders); the renders and restored
@@ -221,7 +214,6 @@ def track_windows(cameras: CameraSet, obs: TrackObservations, window: float = TR
     valid = np.ones(points.shape[:2], bool)
     values = np.zeros((*points.shape[:2], 3))
     distance = np.full(len(obs.rows), np.inf)
-    water_colour = np.full((len(cameras.frames), 3), np.nan)
     for index, frame in enumerate(cameras.frames):
         here = np.flatnonzero(obs.frames == index)
         if here.size == 0:
@@ -237,11 +229,9 @@ def track_windows(cameras: CameraSet, obs: TrackObservations, window: float = TR
         water = open_water_mask(np.nan_to_num(image), valid=good) if open_water else None
         if water is not None and water.any():
             distance[here] = distance_transform_edt(~water)[obs.rows[here], obs.cols[here]]
-            if water.sum() >= MIN_OPEN_WATER_SHARE * good.sum():
-                water_colour[index] = np.median(image[water], axis=0)
     valid[~valid.any(1)] = True
     return TrackWindows(points, valid, _window_mean(values, valid),
-                        distance if open_water else None, water_colour if open_water else None)
+                        distance if open_water else None)
 
 
 def observation_rays(cameras: CameraSet, obs: TrackObservations,
@@ -413,8 +403,7 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
         beside = _near_open_water(obs, windows, restorations)
         if beside is not None:
             result["all_views"]["near_open_water"] = beside
-    cast = frame_colour_offsets(obs.track_ids, obs.frames, obs.ranges, observed,
-                                open_water=windows.open_water_colour)
+    cast = frame_colour_offsets(obs.track_ids, obs.frames, obs.ranges, observed)
     if cast is not None:
         result["frame_colour"] = _frame_colour_record(cast, obs.names)
     headline = result.get("all_views", {})
@@ -496,7 +485,7 @@ def input_colour_change(cameras: CameraSet, max_points: int = 5000,
         log.warning("no track evidence: %s", exc)
         return None
     train = ~obs.held_out
-    windows = track_windows(cameras, obs, open_water=True)
+    windows = track_windows(cameras, obs, open_water=near_open_water)
     fit = track_slope(obs.track_ids[train], obs.ranges[train], windows.observed[train])
     if fit.tracks < MIN_TRACKS:
         return None
@@ -511,7 +500,7 @@ def input_colour_change(cameras: CameraSet, max_points: int = 5000,
     if glare is not None:
         result["near_open_water"] = glare
     cast = frame_colour_offsets(obs.track_ids[train], obs.frames[train], obs.ranges[train],
-                                windows.observed[train], open_water=windows.open_water_colour)
+                                windows.observed[train])
     if cast is not None:
         result["frame_colour"] = _frame_colour_record(cast, obs.names)
     return result
@@ -523,7 +512,7 @@ def _frame_colour_record(cast, names: list[str]) -> dict:
 
     return {"ratios": ["log red / green", "log blue / green"], "spread": cast.spread.tolist(),
             "noise": cast.noise.tolist(), "varies": cast.varies,
-            "threshold": FRAME_COLOUR_SPREAD, "open_water_frames": cast.open_water_frames,
+            "threshold": FRAME_COLOUR_SPREAD,
             "offsets": {names[int(f)]: o.tolist() for f, o in zip(cast.frames, cast.offsets)}}
 
 
