@@ -11,7 +11,8 @@ signed error per channel (``?``: flagged as not determined; ``!``: its interval 
 truth), and the photographs' colour casts from frame to frame along the COLMAP tracks (the
 evaluate step's ``track_colour_slope.frame_colour``). ``--summarise-only`` tabulates a finished
 ``--work``. Where ``../shared/data/d3_reef`` is present its real frames run too (row
-``reef``: no truth, so only the held-out PSNR and the frame colour).
+``reef``, and ``reef_uncorrected`` with ``train.frame_colour=off``: no truth, so only the
+held-out PSNR and the frame colour).
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ def run_workflow(work: Path, cores: int) -> None:
     rows += [f"{name}\tsimulated\t\t{options}\t" for name, options in ARMS.items()]
     if REEF.is_dir():
         rows.append(f"reef\timages\t{REEF}\t\t")
+        rows.append(f"reef_uncorrected\timages\t{REEF}\ttrain.frame_colour=off\t")
     (work / "config" / "datasets.tsv").write_text("\n".join(rows) + "\n")
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
     subprocess.run([sys.executable, "-m", "snakemake", "--snakefile",
@@ -106,6 +108,8 @@ def main() -> None:
     arms = {name: options or "(the DNGs)" for name, options in ARMS.items()}
     if (args.work / "results" / "reef").is_dir():
         arms["reef"] = f"images: {REEF.name}, the real frames"
+    if (args.work / "results" / "reef_uncorrected").is_dir():
+        arms["reef_uncorrected"] = f"images: {REEF.name}; train.frame_colour=off"
     lines = [
         "# Camera JPEGs and their white balance against the DNGs "
         "(`benchmarks/bench_camera_jpeg.py`)", "",

@@ -109,10 +109,10 @@ def dive_row(work: Path, name: str) -> str:
     if name == "reef":
         return f"| reef (d3_reef, no truth) | - | {_pair(cast.spread)} | - | - | {varies} |"
     truth = true_offsets(root)
-    true = np.array(list(truth.values()))
-    spread = 1.4826 * np.median(np.abs(true - np.median(true, axis=0)), axis=0)
     on_frames = np.array([truth[Path(names[int(f)]).stem] for f in cast.frames])
-    error = cast.offsets - (on_frames - np.median(on_frames, axis=0))
+    on_frames -= np.median(on_frames, axis=0)
+    spread = np.sqrt(np.mean(on_frames ** 2, axis=0))       # as FrameColour.spread
+    error = cast.offsets - on_frames
     error -= np.median(error, axis=0)
     return (f"| {name} | {_pair(spread)} | {_pair(cast.spread)} | "
             f"{_pair(np.sqrt((error ** 2).mean(axis=0)))} | {_pair(np.abs(error).max(axis=0))} "
@@ -137,8 +137,8 @@ def main() -> None:
         "frame (grey world within 4x), through ingest and COLMAP; the training frames' casts "
         "(`frame_colour_offsets`, as the train step calls it) against the simulator's gains. "
         "Errors in log red / green, blue / green, both sides against their median frame; "
-        "spread: the robust spread of the true casts and of those found; varies: judged to "
-        "vary (the train step corrects it). `survey_plain_jpeg`: no white balance (the true "
+        "spread: the root mean square of the true casts and of those found over the training "
+        "frames, against the median frame; varies: judged to vary (the train step corrects it). `survey_plain_jpeg`: no white balance (the true "
         "casts are all zero).", "",
         "| dive | true spread | spread found | error: rms | largest | varies |",
         "|---|---|---|---|---|---|",

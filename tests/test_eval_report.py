@@ -716,12 +716,12 @@ def test_a_colour_cast_that_changes_between_frames_warns_with_its_spread():
     summary = _summary("phone", 25.0)
     summary.track_colour_slope = _track_slope(0.5)
     summary.track_colour_slope["frame_colour"] = {
-        "spread": [0.150, 0.046], "noise": [0.001, 0.001], "varies": True, "threshold": 0.05,
+        "spread": [0.150, 0.046], "noise": [0.001, 0.001], "varies": True, "threshold": 0.08,
         "offsets": {"dive_0001": [0.02, -0.01], "dive_0009": [-0.31, 0.08]}}
     [warning] = evaluation_warnings(summary)
     assert warning["code"] == "colour_varies_between_frames"
     assert "vary by 15%, 5% between frames" in warning["message"]
-    assert "(robust spread; farthest from the median frame: dive_0009, -31%, +8%)" in \
+    assert "(root mean square; farthest from the median frame: dive_0009, -31%, +8%)" in \
         warning["message"] and "Shoot RAW" in warning["message"]
     assert "No water model follows it" in warning["message"]
     summary.medium_selection = {"frame_colour_correction": {"gains": {}, "spread": [0.13, 0.04]}}

@@ -471,15 +471,16 @@ def _frame_colour_warning(summary: EvaluationSummary | None) -> list[dict]:
                            dict)
     trained = ("The model was trained on the photographs brought to the median frame's cast "
                "(train.frame_colour auto), which undoes most of it but not all (the simulated "
-               "survey white-balanced frame by frame: the water up to 23% off, every interval "
-               "holding the truth, against 43% off and three intervals missing it without)"
+               "survey white-balanced frame by frame: red within 3%, green and blue "
+               "attenuation 12% and 20% low with intervals that miss the truth, against up to "
+               "33% off without)"
                if corrected else
                "No water model follows it, so the fitted water is off, possibly more than its "
-               "intervals say (the simulated survey white-balanced frame by frame: up to 43% "
+               "intervals say (the simulated survey white-balanced frame by frame: up to 33% "
                "off, three intervals missing the truth)")
     message = (f"the photographs' colour cast changes from frame to frame beyond what the "
                f"points and their ranges explain: red and blue against green vary by {spread} "
-               f"between frames (robust spread{example}), as a camera's automatic "
+               f"between frames (root mean square{example}), as a camera's automatic "
                f"white balance makes them. {trained}. Shoot RAW, or set the white balance by "
                f"hand for the dive.")
     return [{"step": "evaluate", "code": "colour_varies_between_frames", "message": message,

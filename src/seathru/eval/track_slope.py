@@ -262,11 +262,13 @@ def _record(fit: TrackSlope) -> dict:
             "observations": fit.observations}
 
 
-#: A robust spread of the frames' colour offsets above this (log chroma, red or blue against
-#: green) is a colour cast that changes from frame to frame: 0.002-0.004 on the simulated survey
-#: from its DNGs or its camera JPEGs, 0.15 / 0.05 (R/G, B/G) on the same JPEGs white-balanced
-#: frame by frame, 0.04 / 0.03 on d3_reef (benchmarks/results/camera_jpeg.md).
-FRAME_COLOUR_SPREAD = 0.05
+#: A spread of the frames' colour offsets (root mean square against the median frame, log red
+#: or blue against green) above this is a colour cast that changes from frame to frame: 0.009
+#: (red) on the simulated survey's camera JPEGs, 0.05 on its orbit, 0.12-0.18 on simulated dives
+#: white-balanced frame by frame, 0.03 / 0.06 (R/G, B/G) on d3_reef, where training on its
+#: photographs brought to one cast improved neither the held-out PSNR nor the slope reduction
+#: (benchmarks/results/frame_colour.md, camera_jpeg.md).
+FRAME_COLOUR_SPREAD = 0.08
 
 
 @dataclass(frozen=True)
@@ -278,8 +280,9 @@ class FrameColour:
         frames: (F,) the frame ids with an offset (at least ``min_observations`` each).
         offsets: (F, 2) log red / green and log blue / green of each frame against the median
             frame.
-        spread: (2,) robust standard deviation of the offsets (1.4826 x median absolute
-            deviation), per ratio.
+        spread: (2,) root mean square of the offsets against the median frame, per ratio (a
+            camera's white balance may move a few frames far and leave the rest alike, which
+            a median absolute deviation would miss).
         noise: (2,) the median frame's standard error of its offset (robust residual spread /
             sqrt of its observations): what the spread would be from noise alone.
     """
@@ -380,7 +383,7 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
             intrinsic = shifted - centred(shifted[:, None])[:, 0]
         offsets[:, ratio] = solution[RANGE_TERMS:]
     offsets -= np.median(offsets, axis=0)
-    spread = 1.4826 * np.median(np.abs(offsets - np.median(offsets, axis=0)), axis=0)
+    spread = np.sqrt(np.mean(offsets ** 2, axis=0))
     noise = np.median([1.4826 * np.median(np.abs(residual[columns == k]), axis=0)
                        / np.sqrt(counts[kept[k]]) for k in range(count)], axis=0)
     return FrameColour(frame_ids[kept], offsets, spread, noise)
