@@ -116,9 +116,10 @@ def main() -> None:
         "The demo's survey (default water, seed 0, 24 views at 320x240, 3 min of training) "
         "through the whole workflow per arm, one sheet. Means over the 3 held-out views; water "
         "as signed error against the truth (R, G, B; `?` flagged as not determined, `!` the "
-        "interval misses the truth); frame colour: the robust spread of each frame's log "
+        "interval misses the truth); frame colour: the root mean square of each frame's log "
         "red / green and blue / green beyond what the points and their ranges explain along "
-        "the COLMAP tracks (`colour_varies_between_frames` above 0.05); corrected: trained on "
+        "the COLMAP tracks, against the median frame (`colour_varies_between_frames` above "
+        "0.08); corrected: trained on "
         "the photographs brought to the median frame's cast (`train.frame_colour`).", "",
         "| arm | options | held-out PSNR | restored render (covered) | restored photographs "
         "| `sigma_attn` | `sigma_bs` | `c_med` | frame colour | corrected |",
