@@ -17,20 +17,15 @@ held-out PSNR and the frame colour).
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
-import os
-import shutil
 import statistics
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 from machine import footer, load_average
+from workflow_sheet import REPO, run_sheet, sheet_arguments
 
-REPO = Path(__file__).resolve().parents[1]
 REEF = REPO.parent / "shared" / "data" / "d3_reef"
 OUT = REPO / "benchmarks" / "results" / "camera_jpeg.md"
 JPEG = "ingest.images=jpeg"
@@ -44,19 +39,11 @@ ARMS = {
 
 
 def run_workflow(work: Path, cores: int) -> None:
-    (work / "config").mkdir(parents=True, exist_ok=True)
-    shutil.copy(REPO / "config" / "config.yaml", work / "config" / "config.yaml")
-    rows = ["dataset\tsource\tpath\toptions\tsweep"]
-    rows += [f"{name}\tsimulated\t\t{options}\t" for name, options in ARMS.items()]
+    rows = [f"{name}\tsimulated\t\t{options}\t" for name, options in ARMS.items()]
     if REEF.is_dir():
         rows.append(f"reef\timages\t{REEF}\t\t")
         rows.append(f"reef_uncorrected\timages\t{REEF}\ttrain.frame_colour=off\t")
-    (work / "config" / "datasets.tsv").write_text("\n".join(rows) + "\n")
-    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
-    subprocess.run([sys.executable, "-m", "snakemake", "--snakefile",
-                    str(REPO / "workflow" / "Snakefile"), "--directory", str(work),
-                    "--configfile", "config/config.yaml", "--cores", str(cores),
-                    "--keep-going"], check=False, env=env, cwd=work)
+    run_sheet(work, rows, cores)
 
 
 def _water_cells(water: dict) -> list[str]:
@@ -96,12 +83,7 @@ def arm_row(work: Path, name: str, options: str) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--work", type=Path, default=Path("/tmp/camera_jpeg"))
-    parser.add_argument("--cores", type=int, default=2)
-    parser.add_argument("--summarise-only", action="store_true")
-    parser.add_argument("--out", type=Path, default=OUT)
-    args = parser.parse_args()
+    args = sheet_arguments(__doc__.splitlines()[0], Path("/tmp/camera_jpeg"), OUT)
     load_before, start = load_average(), time.time()
     if not args.summarise_only:
         run_workflow(args.work, args.cores)

@@ -14,19 +14,14 @@ blue / green, against the median frame), and whether the cast is judged to vary.
 
 from __future__ import annotations
 
-import argparse
 import json
-import os
-import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 from machine import footer, load_average
+from workflow_sheet import REPO, run_sheet, sheet_arguments
 
-REPO = Path(__file__).resolve().parents[1]
 REEF = REPO.parent / "shared" / "data" / "d3_reef"
 OUT = REPO / "benchmarks" / "results" / "frame_colour.md"
 BALANCED = "ingest.images=jpeg; simulate.jpeg_white_balance=auto"
@@ -42,20 +37,12 @@ DIVES = {
 
 
 def run_poses(work: Path, cores: int) -> None:
-    (work / "config").mkdir(parents=True, exist_ok=True)
-    shutil.copy(REPO / "config" / "config.yaml", work / "config" / "config.yaml")
-    rows = ["dataset\tsource\tpath\toptions\tsweep"]
-    rows += [f"{name}\tsimulated\t\t{options}\t" for name, options in DIVES.items()]
+    rows = [f"{name}\tsimulated\t\t{options}\t" for name, options in DIVES.items()]
     targets = [f"results/{name}/poses" for name in DIVES]
     if REEF.is_dir():
         rows.append(f"reef\timages\t{REEF}\t\t")
         targets.append("results/reef/poses")
-    (work / "config" / "datasets.tsv").write_text("\n".join(rows) + "\n")
-    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
-    subprocess.run([sys.executable, "-m", "snakemake", "--snakefile",
-                    str(REPO / "workflow" / "Snakefile"), "--directory", str(work),
-                    "--configfile", "config/config.yaml", "--cores", str(cores),
-                    "--keep-going", *targets], check=False, env=env, cwd=work)
+    run_sheet(work, rows, cores, tuple(targets))
 
 
 def true_offsets(root: Path) -> dict[str, np.ndarray]:
@@ -120,12 +107,7 @@ def dive_row(work: Path, name: str) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--work", type=Path, default=Path("/tmp/frame_colour"))
-    parser.add_argument("--cores", type=int, default=2)
-    parser.add_argument("--summarise-only", action="store_true")
-    parser.add_argument("--out", type=Path, default=OUT)
-    args = parser.parse_args()
+    args = sheet_arguments(__doc__.splitlines()[0], Path("/tmp/frame_colour"), OUT)
     load_before, start = load_average(), time.time()
     if not args.summarise_only:
         run_poses(args.work, args.cores)
@@ -138,8 +120,8 @@ def main() -> None:
         "(`frame_colour_offsets`, as the train step calls it) against the simulator's gains. "
         "Errors in log red / green, blue / green, both sides against their median frame; "
         "spread: the root mean square of the true casts and of those found over the training "
-        "frames, against the median frame; varies: judged to vary (the train step corrects it). `survey_plain_jpeg`: no white balance (the true "
-        "casts are all zero).", "",
+        "frames, against the median frame; varies: judged to vary (the train step corrects "
+        "it). `survey_plain_jpeg`: no white balance (the true casts are all zero).", "",
         "| dive | true spread | spread found | error: rms | largest | varies |",
         "|---|---|---|---|---|---|",
         *(dive_row(args.work, name) for name in names), "",
