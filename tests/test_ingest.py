@@ -521,6 +521,31 @@ def test_a_jpeg_cut_short_is_refused_and_a_whole_one_decodes(tmp_path, progressi
         rawio.read_encoded(tmp_path / "folder.jpg", "srgb")
 
 
+@pytest.mark.parametrize("factor, chroma", [
+    (cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444, "4:4:4"),
+    (cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422, "4:2:2"),
+    (cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420, "4:2:0")])
+def test_a_jpegs_chroma_sampling_is_recorded(tmp_path, factor, chroma):
+    """How the camera stored the colour goes into the manifest's decoder facts (4:2:0 takes
+    green and blue attenuation a few per cent low: docs/water.md); grey JPEGs and other
+    files have none."""
+    colour = np.random.default_rng(4).integers(0, 255, (32, 48, 3), dtype=np.uint8)
+    cv2.imwrite(str(tmp_path / "frame.jpg"), colour,
+                [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, factor])
+    assert rawio.read_encoded(tmp_path / "frame.jpg", "srgb").metadata["chroma"] == chroma
+    cv2.imwrite(str(tmp_path / "grey.jpg"), colour[..., 0])
+    cv2.imwrite(str(tmp_path / "frame.png"), colour)
+    assert "chroma" not in rawio.read_encoded(tmp_path / "grey.jpg", "srgb").metadata
+    assert "chroma" not in rawio.read_encoded(tmp_path / "frame.png", "srgb").metadata
+    assert rawio.jpeg_chroma(tmp_path / "frame.png") is None
+    from seathru.io.manifest import transfer_summary
+
+    images = [{"kind": "srgb", "decoder": {"transfer": "srgb", "chroma": chroma}}] * 2 + [
+        {"kind": "srgb", "decoder": {"transfer": "srgb"}}]
+    assert transfer_summary({"images": images}) == \
+        f"srgb (by kind), colour {chroma}: 2 images; srgb (by kind): 1 image"
+
+
 def test_a_cut_jpeg_among_whole_ones_is_rejected_by_name(tmp_path):
     folder = tmp_path / "DCIM"
     folder.mkdir()

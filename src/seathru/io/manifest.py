@@ -182,13 +182,16 @@ class IngestManifest(TypedDict):
 
 def transfer_summary(manifest: IngestManifest) -> str:
     """How the images' stored values were decoded to linear, e.g. ``gamma 1.8 (ICC profile
-    'ProPhoto RGB'): 24 images`` (RAW files: LibRaw's linear output)."""
+    'ProPhoto RGB'): 24 images`` (RAW files: LibRaw's linear output), and how JPEGs stored
+    their colour (``srgb (by kind), colour 4:2:0: 24 images``; ``seathru.io.raw.jpeg_chroma``)."""
     counts: dict[str, int] = {}
     for image in manifest["images"]:
         decoder = image["decoder"]
         curve = ("LibRaw's linear output" if image["kind"] == "raw" else
                  f"{decoder.get('transfer', image['kind'])} "
                  f"({decoder.get('transfer_source', 'by kind')})")
+        if decoder.get("chroma"):
+            curve += f", colour {decoder['chroma']}"
         counts[curve] = counts.get(curve, 0) + 1
     return "; ".join(f"{curve}: {count} image{'s' * (count != 1)}"
                      for curve, count in counts.items()) or "nothing"

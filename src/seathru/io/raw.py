@@ -550,13 +550,33 @@ def _linear_source(path: Path) -> tuple[str, list[str]]:
                                   f"read as linear values as ingest.kind=linear asks"]
 
 
+#: JPEG chroma sampling as Pillow reports it (``JpegImagePlugin.get_sampling``).
+CHROMA_SAMPLING = {0: "4:4:4", 1: "4:2:2", 2: "4:2:0"}
+
+
+def jpeg_chroma(path: str | Path) -> str | None:
+    """How a colour JPEG stores its colour: ``"4:4:4"`` (every pixel), ``"4:2:2"`` or
+    ``"4:2:0"`` (averaged over 2 x 1 or 2 x 2 pixels in the encoded values, as most cameras
+    write it; green and blue attenuation comes out a few per cent low from it,
+    docs/water.md); None for other files, grey JPEGs or a layout Pillow does not name."""
+    from PIL import JpegImagePlugin
+
+    try:
+        with Image.open(path) as image:
+            if image.format != "JPEG" or image.mode == "L":
+                return None
+            return CHROMA_SAMPLING.get(JpegImagePlugin.get_sampling(image))
+    except (OSError, ValueError):
+        return None
+
+
 def read_encoded(path: str | Path, kind: str) -> DecodedImage:
     """Read a JPEG/PNG/TIFF as linear RGB. ``kind='srgb'`` (display-encoded): the stored values
     through the inverse of the curve the file records (an ICC profile's gamma 1.8, say), else of
     sRGB's; ``kind='linear'``: the stored values as they are. Integers map to [0, 1] by their top
     code; the EXIF orientation is applied. The manifest's ``decoder.transfer`` names the curve
     (``seathru.radiometry.stored_encoding``) and ``decoder.transfer_source`` where it came
-    from."""
+    from; a colour JPEG's ``decoder.chroma`` how it stores its colour (:func:`jpeg_chroma`)."""
     if kind not in ("linear", "srgb"):
         raise ValueError(f"kind must be 'linear' or 'srgb', not {kind!r}")
     path = Path(path)
@@ -581,6 +601,9 @@ def read_encoded(path: str | Path, kind: str) -> DecodedImage:
                 and np.array_equal(codes[..., 1], codes[..., 2]))
     metadata = {"bit_depth": int(codes.dtype.itemsize * 8), "sample_type": str(codes.dtype),
                 "flip": flip, "transfer": transfer, "transfer_source": source, "grey": grey}
+    chroma = jpeg_chroma(path) if path.suffix.lower() in (".jpg", ".jpeg") else None
+    if chroma:
+        metadata["chroma"] = chroma
     return DecodedImage(
         image=linearise.orient(values, flip), saturated=linearise.orient(saturated, flip),
         black_clipped=linearise.orient(black_clipped, flip), kind=kind, exposure=exif,
