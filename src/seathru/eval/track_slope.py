@@ -347,7 +347,8 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
     column = np.full(len(frame_ids), -1)
     column[kept] = np.arange(len(kept))
     columns = column[frame_index[used]]
-    ratios = _log_ratios(np.asarray(colours)[used], floor)
+    logs = np.log(np.clip(np.asarray(colours, np.float64)[used], floor, None))
+    ratios = np.stack([logs[:, 0] - logs[:, 1], logs[:, 2] - logs[:, 1]], axis=1)
     _, track = np.unique(np.asarray(track_ids)[used], return_inverse=True)
     per_track = np.bincount(track).astype(np.float64)
     rows, count = np.arange(len(track)), len(kept)
@@ -389,12 +390,6 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
     return FrameColour(frame_ids[kept], offsets, spread, noise)
 
 
-def _log_ratios(colours: np.ndarray, floor: float) -> np.ndarray:
-    """(N, 2) log red / green and log blue / green of (N, 3) linear colours."""
-    logs = np.log(np.clip(np.asarray(colours, np.float64), floor, None))
-    return np.stack([logs[:, 0] - logs[:, 1], logs[:, 2] - logs[:, 1]], axis=1)
-
-
 def _weighted_solve(design, target: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """The weighted least-squares solution, the offsets summing to zero (the rows, within
     tracks, fix them only up to a common shift)."""
@@ -407,9 +402,7 @@ def _weighted_solve(design, target: np.ndarray, weights: np.ndarray) -> np.ndarr
     return np.linalg.lstsq(normal, design.T @ (weights * target), rcond=None)[0]
 
 
-def _huber_weights(residual: np.ndarray, threshold: float, minimum_scale: float = 1e-9
-                   ) -> np.ndarray:
+def _huber_weights(residual: np.ndarray, threshold: float) -> np.ndarray:
     """Huber's weights of ``residual`` at ``threshold`` robust standard deviations."""
-    scale = max(1.4826 * float(np.median(np.abs(residual))), minimum_scale) if len(residual) \
-        else minimum_scale
+    scale = max(1.4826 * float(np.median(np.abs(residual))), 1e-9)
     return np.minimum(1.0, threshold * scale / np.maximum(np.abs(residual), 1e-12))
