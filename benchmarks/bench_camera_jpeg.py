@@ -1,6 +1,7 @@
 """What shooting camera JPEGs costs the water, against the truth: the demo's simulated survey
 trained from its DNGs, from its camera JPEGs, and from JPEGs white-balanced frame by frame as a
-camera's automatic white balance does (with and without ``train.frame_colour``), each through
+camera's automatic white balance does (with and without ``train.frame_colour``), and both kinds
+of JPEG with their colour at full resolution (4:4:4, where cameras write 4:2:0), each through
 the whole workflow (simulate, ingest, COLMAP, train, render, evaluate) in one sheet.
 
     python benchmarks/bench_camera_jpeg.py --work /tmp/camera_jpeg
@@ -19,22 +20,24 @@ from __future__ import annotations
 
 import csv
 import json
-import statistics
 import time
 from pathlib import Path
 
 from machine import footer, load_average
-from workflow_sheet import REPO, run_sheet, sheet_arguments
+from workflow_sheet import REPO, metric_mean, run_sheet, sheet_arguments, water_cells
 
 REEF = REPO.parent / "shared" / "data" / "d3_reef"
 OUT = REPO / "benchmarks" / "results" / "camera_jpeg.md"
 JPEG = "ingest.images=jpeg"
 AUTO_BALANCE = "simulate.jpeg_white_balance=auto"
+FULL_CHROMA = "simulate.jpeg_chroma=4:4:4"
 ARMS = {
     "raw": "",
     "jpeg": JPEG,
     "jpeg_awb": f"{JPEG}; {AUTO_BALANCE}",
     "jpeg_awb_uncorrected": f"{JPEG}; {AUTO_BALANCE}; train.frame_colour=off",
+    "jpeg_444": f"{JPEG}; {FULL_CHROMA}",
+    "jpeg_awb_444": f"{JPEG}; {AUTO_BALANCE}; {FULL_CHROMA}",
 }
 
 
@@ -46,19 +49,6 @@ def run_workflow(work: Path, cores: int) -> None:
     run_sheet(work, rows, cores)
 
 
-def _water_cells(water: dict) -> list[str]:
-    cells = []
-    for key in ("sigma_attn", "sigma_bs", "c_med"):
-        values = []
-        for fitted, true, determined, holds in zip(water["fitted"][key], water["truth"][key],
-                                                   water["determined"][key],
-                                                   water["contains_truth"][key]):
-            mark = ("" if determined else "?") + ("" if holds else "!")
-            values.append(f"{100 * (fitted - true) / true:+.0f}{mark}")
-        cells.append(", ".join(values) + "%")
-    return cells
-
-
 def arm_row(work: Path, name: str, options: str) -> str:
     root = work / "results" / name
     summary_path = root / "evaluate" / "summary.json"
@@ -68,8 +58,7 @@ def arm_row(work: Path, name: str, options: str) -> str:
     rows = list(csv.DictReader((root / "evaluate" / "metrics.csv").open()))
 
     def mean(key: str) -> str:
-        values = [float(row[key]) for row in rows if row.get(key)]
-        return f"{statistics.mean(values):.2f}" if values else "-"
+        return metric_mean(rows, key)
 
     cast = (summary.get("track_colour_slope") or {}).get("frame_colour") or {}
     spread = ", ".join(f"{v:.3f}" for v in cast.get("spread") or []) or "-"
@@ -78,7 +67,7 @@ def arm_row(work: Path, name: str, options: str) -> str:
     return (f"| {name} | `{options}` | {mean('psnr_linear')} | "
             f"{mean('restored_psnr_linear')} ({mean('restored_psnr_linear_covered')}) "
             f"| {mean('photo_restored_psnr_linear')} | "
-            + " | ".join(_water_cells(water) if water else ["-"] * 3)
+            + " | ".join(water_cells(water) if water else ["-"] * 3)
             + f" | {spread} | {'yes' if corrected else 'no'} |")
 
 

@@ -5,21 +5,28 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
+import statistics
 import subprocess
 import sys
 from pathlib import Path
+
+import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 SHEET_HEADER = "dataset\tsource\tpath\toptions\tsweep"
 
 
-def run_sheet(work: Path, rows: list[str], cores: int, targets: tuple[str, ...] = ()) -> None:
+def run_sheet(work: Path, rows: list[str], cores: int, targets: tuple[str, ...] = (),
+              sweep: dict[str, str] | None = None) -> None:
     """Run the workflow in ``work`` over ``rows`` (the sheet's lines after its header) with
     the project's config, one dataset's failure not stopping the others; ``targets``: what
-    to make (default: everything)."""
+    to make (default: everything); ``sweep``: the config's sweep variants instead of the
+    project's (variant name -> options)."""
     (work / "config").mkdir(parents=True, exist_ok=True)
-    shutil.copy(REPO / "config" / "config.yaml", work / "config" / "config.yaml")
+    config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    if sweep is not None:
+        config["sweep"] = sweep
+    (work / "config" / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
     (work / "config" / "datasets.tsv").write_text("\n".join([SHEET_HEADER, *rows]) + "\n")
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
     subprocess.run([sys.executable, "-m", "snakemake", "--snakefile",
@@ -28,12 +35,38 @@ def run_sheet(work: Path, rows: list[str], cores: int, targets: tuple[str, ...] 
                     "--keep-going", *targets], check=False, env=env, cwd=work)
 
 
-def sheet_arguments(description: str, work: Path, out: Path) -> argparse.Namespace:
+def sheet_arguments(description: str, work: Path, out: Path,
+                    extra: dict[str, dict] | None = None) -> argparse.Namespace:
     """``--work`` (the working folder), ``--cores``, ``--summarise-only`` (tabulate a
-    finished ``--work``) and ``--out`` (the results file)."""
+    finished ``--work``) and ``--out`` (the results file); ``extra``: a benchmark's own
+    options (flag -> ``add_argument`` keywords)."""
     parser = argparse.ArgumentParser(description=description)
+    for flag, keywords in (extra or {}).items():
+        parser.add_argument(flag, **keywords)
     parser.add_argument("--work", type=Path, default=work)
     parser.add_argument("--cores", type=int, default=2)
     parser.add_argument("--summarise-only", action="store_true")
     parser.add_argument("--out", type=Path, default=out)
     return parser.parse_args()
+
+
+def water_cells(water: dict) -> list[str]:
+    """The evaluate step's ``truth.water`` as three table cells (``sigma_attn``, ``sigma_bs``,
+    ``c_med``): signed error against the truth per channel, %, ``?`` where flagged as not
+    determined, ``!`` where the interval misses the truth."""
+    cells = []
+    for key in ("sigma_attn", "sigma_bs", "c_med"):
+        values = []
+        for fitted, true, determined, holds in zip(water["fitted"][key], water["truth"][key],
+                                                   water["determined"][key],
+                                                   water["contains_truth"][key]):
+            mark = ("" if determined else "?") + ("" if holds else "!")
+            values.append(f"{100 * (fitted - true) / true:+.0f}{mark}")
+        cells.append(", ".join(values) + "%")
+    return cells
+
+
+def metric_mean(rows: list[dict], key: str) -> str:
+    """The mean of a ``metrics.csv`` column over its views, two decimals, ``-`` if none."""
+    values = [float(row[key]) for row in rows if row.get(key)]
+    return f"{statistics.mean(values):.2f}" if values else "-"

@@ -3,6 +3,7 @@ the other steps use (cameras, water truth, truth images, DNG tags)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -15,6 +16,7 @@ from seathru.io.cameras import read_cameras
 from seathru.io.dng import read_dng_metadata
 from seathru.io.evaluation import read_truth_image
 from seathru.io.images import read_image
+from seathru.io.raw import jpeg_chroma
 from seathru.io.water import read_truth_water
 from seathru.sim import dive
 from seathru.sim.water import water_params
@@ -64,6 +66,28 @@ def test_round_trip_through_the_readers(written):
         assert np.abs(jpeg - view.jpeg).mean() < 0.03  # 8-bit JPEG of the developed image
     readme = (root / "README.md").read_text()
     assert "water preset `turbid+custom`" in readme and "[0.1, 0.2, 0.3] /m" in readme
+    assert sensor["jpeg"]["chroma"] == "4:2:0" and "4:2:0 chroma sampling" in readme
+
+
+def test_the_camera_jpegs_colour_resolution_is_a_setting(written, tmp_path):
+    """Cameras store colour at half resolution (4:2:0); at 4:4:4 every pixel keeps its own,
+    so the stored colour (each channel against the pixel's mean) follows the developed image
+    closer."""
+    _, plan, views = written
+    name, view = next(iter(views.items()))
+    errors = {}
+    for chroma in ("4:2:0", "4:4:4"):
+        sensor = dataclasses.replace(SPEC.sensor, jpeg_chroma=chroma)
+        truth.write_view(tmp_path / chroma.replace(":", ""), name, view, sensor, plan.camera)
+        path = tmp_path / chroma.replace(":", "") / "jpeg" / f"{name}.jpg"
+        assert jpeg_chroma(path) == chroma
+        jpeg = read_image(path)
+        errors[chroma] = np.abs((jpeg - jpeg.mean(-1, keepdims=True))
+                                - (view.jpeg - view.jpeg.mean(-1, keepdims=True))).mean()
+    assert errors["4:4:4"] < 0.7 * errors["4:2:0"]
+    with pytest.raises(ValueError, match="4:1:1"):
+        truth.write_view(tmp_path / "bad", name, view,
+                         dataclasses.replace(SPEC.sensor, jpeg_chroma="4:1:1"), plan.camera)
 
 
 def test_open_water_view_gets_default_bounds():

@@ -160,7 +160,7 @@ def _variants(cls: type) -> list[dict]:
     """Nested option dicts that exercise every kind of value of ``cls``'s settings."""
     defaults = settings.to_dict(cls())
     flat = settings.flatten(defaults)
-    flipped, words, nulls = {}, {}, {}
+    flipped, words, nulls, numbers = {}, {}, {}, {}
     for name, value in flat.items():
         tp = _field_type(cls, name)
         optional = typing.get_origin(tp) in (typing.Union, types.UnionType)
@@ -169,10 +169,14 @@ def _variants(cls: type) -> list[dict]:
             flipped[name] = not value
         elif typing.get_origin(inner) is typing.Literal or inner is str:
             words[name] = False   # `mode: off` as Snakemake's YAML 1.1 reads it
+            for choice in typing.get_args(inner):   # `jpeg_chroma: 4:4:4` as it reads that
+                number = yaml.safe_load(f"x: {choice}")["x"]
+                if isinstance(number, int) and not isinstance(number, bool):
+                    numbers[name] = number
         if value is None or optional:
             nulls[name] = None
     return [defaults, settings.nest(flipped), settings.nest(words), settings.nest(nulls),
-            {}]
+            settings.nest(numbers), {}]
 
 
 @pytest.mark.parametrize("step", STEP_ORDER)
@@ -194,6 +198,17 @@ _VALUES = st.recursive(
 @given(st.dictionaries(_NAMES, _VALUES, max_size=4))
 def test_workflow_flags_equal_cli_flags_without_types(options):
     assert HELPERS["flag_list"](options) == settings.cli_flags(options)
+
+
+def test_a_choice_yaml_11_reads_as_a_base_60_number_means_that_choice():
+    from seathru.steps.simulate import Settings
+
+    given = yaml.safe_load("jpeg_chroma: 4:4:4")        # as Snakemake reads the config
+    assert given == {"jpeg_chroma": 14644}
+    assert settings.from_mapping(Settings, given).jpeg_chroma == "4:4:4"
+    assert settings.cli_flags(given, Settings) == ["--jpeg-chroma", "4:4:4"]
+    with pytest.raises(settings.SettingsError, match="jpeg_chroma: 14645 is not one of"):
+        settings.from_mapping(Settings, {"jpeg_chroma": 14645})
 
 
 def test_sheet_values_are_yaml_with_only_true_and_false_as_booleans():

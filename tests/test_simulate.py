@@ -557,6 +557,13 @@ def test_bad_settings_are_refused_naming_the_setting(tmp_path, capsys, flags, me
     assert not (tmp_path / "x").exists()
 
 
+def test_a_jpeg_chroma_sampling_the_simulator_does_not_write_is_refused(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        cli_main(["simulate", "--out", str(tmp_path / "x"), "--jpeg-chroma", "4:1:1"])
+    assert "--jpeg-chroma: invalid choice: '4:1:1'" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+
+
 def test_output_is_deterministic_and_independent_of_workers(tmp_path):
     base = dict(views=3, width=24, height=16, seed=11, supersample=1)
     simulate(tmp_path / "one", Settings(**base, workers=1))

@@ -165,7 +165,7 @@ def test_rules_pass_nested_options_as_flags_that_parse_back(tmp_path):
     # as Snakemake reads `mode: off` (YAML 1.1): False
     config["train"] = {**config.get("train", {}), "medium": {"mode": False}, "progress": False}
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
-    options = ("simulate.water=clear; train.medium.sigma_init=1e-3; "
+    options = ("simulate.water=clear; simulate.jpeg_chroma=4:4:4; train.medium.sigma_init=1e-3; "
                "train.field.view_dependent_colour=true; train.field.density_res=[64, 96, 128]; "
                "train.device=cuda:0; render.path_frames=3")
     sheet = _sheet(tmp_path, ["plain\tsimulated\t\t", f"tuned\tsimulated\t\t{options}"])
@@ -177,6 +177,7 @@ def test_rules_pass_nested_options_as_flags_that_parse_back(tmp_path):
     assert "--medium.mode off" in train and "--no-progress" in train, train
     assert "--field.density-res 64 96 128" in train and "--medium.sigma-init 0.001" in train
     assert "--medium.mode off" in commands[("train", "plain")]
+    assert "--jpeg-chroma 4:4:4" in commands[("simulate", "tuned")]   # not base-60 14644
     assert "--field" not in commands[("train", "plain")]
 
     helpers = workflow_helpers()

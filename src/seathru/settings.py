@@ -33,6 +33,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import re
 import dataclasses
 import sys
 import types
@@ -107,9 +108,10 @@ def _coerce(tp: Any, value: Any, name: str, length: int | None = None) -> Any:
             return None
         raise SettingsError(f"{name}: a value is required ({_describe(tp)})")
     origin = typing.get_origin(inner)
-    if isinstance(value, bool) and (inner is str or origin is Literal):
-        value = _yaml11_word(value, typing.get_args(inner) if origin is Literal else ())
+    if isinstance(value, bool) and inner is str:
+        value = _yaml11_word(value, ())
     if origin is Literal:
+        value = _yaml11_choice(value, typing.get_args(inner))
         choices = typing.get_args(inner)
         if value not in choices:
             raise SettingsError(f"{name}: {value!r} is not one of "
@@ -146,13 +148,35 @@ def _coerce(tp: Any, value: Any, name: str, length: int | None = None) -> Any:
 
 
 # YAML 1.1 (PyYAML, Snakemake's config) reads off/on/no/yes as booleans: a string setting
-# given as `mode: off` arrives as False and means the word.
+# given as `mode: off` arrives as False and means the word. It also reads digits joined by
+# colons as a base-60 number: `jpeg_chroma: 4:2:0` arrives as 14520 and means the choice.
 _YAML11_WORDS = {False: ("off", "no", "false"), True: ("on", "yes", "true")}
+_SEXAGESIMAL = re.compile(r"[1-9][0-9]*(?::[0-5]?[0-9])+")
 
 
 def _yaml11_word(value: bool, choices: tuple) -> Any:
     words = _YAML11_WORDS[value]
     return next((w for w in words if w in choices), value) if choices else words[0]
+
+
+def _sexagesimal(choice: Any) -> int | None:
+    """The number YAML 1.1 reads ``choice`` as when it is digits joined by colons, else None."""
+    if not isinstance(choice, str) or not _SEXAGESIMAL.fullmatch(choice):
+        return None
+    number = 0
+    for part in choice.split(":"):
+        number = 60 * number + int(part)
+    return number
+
+
+def _yaml11_choice(value: Any, choices: tuple) -> Any:
+    """The choice a YAML 1.1 reading of it stands for (a boolean word, a base-60 number), else
+    ``value`` itself."""
+    if isinstance(value, bool):
+        return _yaml11_word(value, choices)
+    if isinstance(value, int):
+        return next((c for c in choices if _sexagesimal(c) == value), value)
+    return value
 
 
 def _field_type(cls: type, dotted: str) -> Any:
@@ -350,10 +374,11 @@ def cli_flags(overrides: Mapping[str, Any], cls: type | None = None) -> list[str
         if value is None:
             continue
         tp = _field_type(cls, key) if cls is not None else None
-        if isinstance(value, bool) and tp is not None and _unwrap_optional(tp)[0] is not bool:
-            inner = _unwrap_optional(tp)[0]
-            choices = typing.get_args(inner) if typing.get_origin(inner) is Literal else ()
-            value = _yaml11_word(value, choices)
+        inner = _unwrap_optional(tp)[0] if tp is not None else None
+        if typing.get_origin(inner) is Literal:
+            value = _yaml11_choice(value, typing.get_args(inner))
+        elif isinstance(value, bool) and inner is str:
+            value = _yaml11_word(value, ())
         if isinstance(value, bool):
             args.append(f"--{name}" if value else f"--no-{name}")
         elif isinstance(value, (list, tuple)):
@@ -370,9 +395,10 @@ def _schema_of(tp: Any, f: dataclasses.Field | None) -> dict:
     origin = typing.get_origin(inner)
     if origin is Literal:
         choices = list(typing.get_args(inner))
-        # YAML 1.1 booleans standing for a choice's word (see _yaml11_word)
+        # YAML 1.1 readings standing for a choice (see _yaml11_choice)
         choices += [flag for flag, words in _YAML11_WORDS.items()
                     if any(w in choices for w in words)]
+        choices += [number for number in map(_sexagesimal, choices) if number is not None]
         node: dict[str, Any] = {"enum": choices}
     elif origin is list:
         item = _schema_of(typing.get_args(inner)[0], None)

@@ -119,8 +119,10 @@ def flatten_options(options, prefix=""):
 
 
 # YAML 1.1 (Snakemake's config loader) reads off/on/no/yes as booleans: a boolean given for a
-# setting that is not boolean stands for the word (`mode: off`), as in seathru.settings.
+# setting that is not boolean stands for the word (`mode: off`), as in seathru.settings; and
+# digits joined by colons as a base-60 number (`jpeg_chroma: 4:2:0` arrives as 14520).
 YAML11_WORDS = {False: ("off", "no", "false"), True: ("on", "yes", "true")}
+SEXAGESIMAL = re.compile(r"[1-9][0-9]*(?::[0-5]?[0-9])+")
 
 
 def schema_node(schema, dotted):
@@ -147,10 +149,23 @@ def yaml11_word(value, node):
     return YAML11_WORDS[value][0]
 
 
+def yaml11_number(value, node):
+    """``value`` (an integer) as the choice of ``node`` (its schema) YAML 1.1 read as it."""
+    for choice in (node or {}).get("enum", []):
+        if isinstance(choice, str) and SEXAGESIMAL.fullmatch(choice):
+            number = 0
+            for part in choice.split(":"):
+                number = 60 * number + int(part)
+            if number == value:
+                return choice
+    return value
+
+
 def flag_list(options, schema=None):
     """Nested options as CLI arguments: ``--section.key-name VALUE``, booleans ``--x``/``--no-x``,
     lists as several values, None left out. With the section's ``schema``, a boolean given for a
-    setting that is not boolean is its YAML 1.1 word (``mode: off`` -> ``--mode off``).
+    setting that is not boolean is its YAML 1.1 word (``mode: off`` -> ``--mode off``), an
+    integer given for a choice of colon-joined digits that choice (``4:2:0``, read as 14520).
 
     The same output as ``seathru.settings.cli_flags(options, Settings)`` (tests/test_settings.py
     compares them); a copy, because the Snakemake process need not be able to import the package
@@ -163,6 +178,8 @@ def flag_list(options, schema=None):
             continue
         if isinstance(value, bool) and schema is not None:
             value = yaml11_word(value, schema_node(schema, key))
+        elif isinstance(value, int) and schema is not None:
+            value = yaml11_number(value, schema_node(schema, key))
         if isinstance(value, bool):
             args.append(f"--{name}" if value else f"--no-{name}")
         elif isinstance(value, (list, tuple)):

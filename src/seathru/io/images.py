@@ -22,6 +22,9 @@ from seathru.io.atomic import atomic_path
 
 #: Extensions (lower case) :func:`list_images` takes as images.
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".bmp", ".webp")
+JPEG_SAMPLING_FACTORS = {"4:4:4": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444,
+                         "4:2:2": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422,
+                         "4:2:0": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420}
 
 
 def list_images(folder: Path) -> list[Path]:
@@ -85,16 +88,21 @@ def write_8bit(path: str | os.PathLike, array: np.ndarray, jpeg_quality: int = 9
 
 def write_camera_jpeg(path: str | os.PathLike, array: np.ndarray, quality: int, *,
                       exposure_time_s: float, iso: int, f_number: float,
-                      focal_length_35mm: int | None = None) -> None:
+                      focal_length_35mm: int | None = None, chroma: str = "4:2:0") -> None:
     """Write values in [0, 1] as an 8-bit JPEG with a camera's EXIF exposure (ExposureTime,
     ISOSpeedRatings, FNumber, FocalLengthIn35mmFilm), atomically; the pixels as
-    :func:`write_8bit` encodes them."""
+    :func:`write_8bit` encodes them, the colour at ``chroma`` sampling ("4:2:0", "4:2:2" or
+    "4:4:4")."""
     from PIL import Image
     from PIL.TiffImagePlugin import IFDRational
 
+    if chroma not in JPEG_SAMPLING_FACTORS:
+        raise ValueError(f"{path}: chroma sampling {chroma!r} is not one of "
+                         f"{', '.join(JPEG_SAMPLING_FACTORS)}")
     data = np.round(np.clip(array, 0.0, 1.0) * 255.0).astype(np.uint8)
     ok, encoded = cv2.imencode(".jpg", cv2.cvtColor(data, cv2.COLOR_RGB2BGR),
-                               [cv2.IMWRITE_JPEG_QUALITY, quality])
+                               [cv2.IMWRITE_JPEG_QUALITY, quality,
+                                cv2.IMWRITE_JPEG_SAMPLING_FACTOR, JPEG_SAMPLING_FACTORS[chroma]])
     if not ok:
         raise PipelineError(f"{path}: OpenCV could not encode the JPEG")
     exif = Image.Exif()

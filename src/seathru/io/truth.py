@@ -105,7 +105,7 @@ def write_view(root: Path, name: str, view: SimulatedView, sensor: SensorConfig,
     write_camera_jpeg(root / "jpeg" / f"{name}.jpg", view.jpeg, JPEG_QUALITY,
                       exposure_time_s=exposure.exposure_time_s, iso=exposure.iso,
                       f_number=exposure.f_number, focal_length_35mm=round(focal_35mm_from_px(
-                          camera.fx, camera.width, camera.height)))
+                          camera.fx, camera.width, camera.height)), chroma=sensor.jpeg_chroma)
     for kind, image in zip(TRUTH_KINDS, (view.clean, view.water, view.range_m)):
         write_float_tiff(root / "truth" / kind / f"{name}.tiff", image)
 
@@ -142,6 +142,7 @@ def sensor_record(config: SensorConfig, plan: DivePlan, names: list[str]) -> dic
                          "exposure_time_s * iso / 100 * dn_per_unit and gain = gain_iso100 * "
                          "iso / 100 (DN per electron)"),
         "jpeg": {"gain": jpeg_gain(config), "quality": JPEG_QUALITY,
+                 "chroma": config.jpeg_chroma,
                  "model": ("jpeg = sRGB(clip(gain * (demosaic_bilinear(raw) - black_level) / "
                            "(white_level - black_level) * wb, 0, 1)), 8 bit; wb = 1, or "
                            "with jpeg_white_balance auto the frame's grey-world gains "
@@ -207,7 +208,8 @@ ExposureTime, ISOSpeedRatings, FNumber and FocalLengthIn35mmFilm (by the image d
 millimetres, as cameras record it) are in the DNG's main IFD.
 
 The JPEG is the bilinearly demosaiced raw, normalised the same way, times one gain for
-the whole set (truth/sensor.json, `jpeg`), clipped and sRGB encoded, with {white_balance}:
+the whole set (truth/sensor.json, `jpeg`), clipped and sRGB encoded, with {white_balance},
+its colour stored at {config.jpeg_chroma} chroma sampling:
 like a camera JPEG it keeps each image's exposure and noise, and its EXIF records the
 exposure and the 35 mm equivalent focal length.
 """

@@ -90,6 +90,7 @@ class SensorConfig:
     exposure_jitter_ev: float = 0.5  # exposure time varies uniformly within +-this many stops
     metering_fraction: float = 0.7   # metered radiance at nominal exposure -> this of the range
     jpeg_white_balance: str = "none"  # none | auto (per frame: auto_white_balance_gains)
+    jpeg_chroma: str = "4:2:0"  # the JPEG's chroma sampling: 4:2:0 as cameras, or 4:4:4
 
     @property
     def range_dn(self) -> int:

@@ -70,6 +70,9 @@ class Settings:
     jpeg_white_balance: Literal["none", "auto"] = setting(
         "none", help="the camera JPEGs' white balance: none, or auto (the camera's, frame by "
                      "frame, grey world: ingest.images=jpeg trains on them)")
+    jpeg_chroma: Literal["4:2:0", "4:4:4"] = setting(
+        "4:2:0", help="the camera JPEGs' chroma sampling: 4:2:0 (colour at half resolution, "
+                      "as cameras write it) or 4:4:4 (every pixel)")
 
     def dive_spec(self) -> dive.DiveSpec:
         """The resolved simulation (raises ValueError naming a bad setting)."""
@@ -79,7 +82,8 @@ class Settings:
                              path=self.path, water=water, seed=self.seed, fov_deg=self.fov_deg,
                              supersample=self.supersample,
                              seabed_amplitude=self.seabed_amplitude,
-                             sensor=SensorConfig(jpeg_white_balance=self.jpeg_white_balance))
+                             sensor=SensorConfig(jpeg_white_balance=self.jpeg_white_balance,
+                                                 jpeg_chroma=self.jpeg_chroma))
 
     def validate(self) -> None:
         self.dive_spec()
