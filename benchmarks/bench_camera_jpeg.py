@@ -18,13 +18,12 @@ held-out PSNR and the frame colour).
 
 from __future__ import annotations
 
-import csv
-import json
 import time
 from pathlib import Path
 
 from machine import footer, load_average
-from workflow_sheet import REPO, metric_mean, run_sheet, sheet_arguments, water_cells
+from workflow_sheet import (REPO, metric_mean, read_run, run_sheet, sheet_arguments,
+                            water_cells)
 
 REEF = REPO.parent / "shared" / "data" / "d3_reef"
 OUT = REPO / "benchmarks" / "results" / "camera_jpeg.md"
@@ -50,12 +49,10 @@ def run_workflow(work: Path, cores: int) -> None:
 
 
 def arm_row(work: Path, name: str, options: str) -> str:
-    root = work / "results" / name
-    summary_path = root / "evaluate" / "summary.json"
-    if not summary_path.is_file():
+    finished = read_run(work, name)
+    if finished is None:
         return f"| {name} | `{options}` | failed (see {work}/logs/{name}) |" + " |" * 8
-    summary = json.loads(summary_path.read_text())
-    rows = list(csv.DictReader((root / "evaluate" / "metrics.csv").open()))
+    summary, rows = finished
 
     def mean(key: str) -> str:
         return metric_mean(rows, key)

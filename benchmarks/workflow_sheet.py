@@ -4,6 +4,8 @@ the Snakemake call and the command line they share."""
 from __future__ import annotations
 
 import argparse
+import csv
+import json
 import os
 import statistics
 import subprocess
@@ -70,3 +72,13 @@ def metric_mean(rows: list[dict], key: str) -> str:
     """The mean of a ``metrics.csv`` column over its views, two decimals, ``-`` if none."""
     values = [float(row[key]) for row in rows if row.get(key)]
     return f"{statistics.mean(values):.2f}" if values else "-"
+
+
+def read_run(work: Path, run: str) -> tuple[dict, list[dict]] | None:
+    """A finished run's evaluation in ``work``: its ``summary.json`` and the rows of its
+    ``metrics.csv``; None where the run did not get that far."""
+    evaluate = work / "results" / run / "evaluate"
+    if not (evaluate / "summary.json").is_file():
+        return None
+    return (json.loads((evaluate / "summary.json").read_text()),
+            list(csv.DictReader((evaluate / "metrics.csv").open())))

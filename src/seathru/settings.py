@@ -375,10 +375,11 @@ def cli_flags(overrides: Mapping[str, Any], cls: type | None = None) -> list[str
             continue
         tp = _field_type(cls, key) if cls is not None else None
         inner = _unwrap_optional(tp)[0] if tp is not None else None
-        if typing.get_origin(inner) is Literal:
-            value = _yaml11_choice(value, typing.get_args(inner))
-        elif isinstance(value, bool) and inner is str:
-            value = _yaml11_word(value, ())
+        choices = typing.get_args(inner) if typing.get_origin(inner) is Literal else ()
+        if isinstance(value, bool) and tp is not None and inner is not bool:
+            value = _yaml11_word(value, choices)
+        elif choices:
+            value = _yaml11_choice(value, choices)
         if isinstance(value, bool):
             args.append(f"--{name}" if value else f"--no-{name}")
         elif isinstance(value, (list, tuple)):
