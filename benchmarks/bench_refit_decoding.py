@@ -47,15 +47,52 @@ from seathru.nerf.rays import frame_rays  # noqa: E402
 
 OUT = REPO / "benchmarks" / "results" / "refit_decoding.md"
 DECODINGS = ("AHD", "PPG", "DCB", "AAHD", "VNG", "DHT", "LINEAR", "half")
+#: the dive's camera JPEGs instead of its RAW files: as simulated (4:2:0), and simulated again
+#: with the colour at full resolution (the same seed and settings: the same raw, JPEGs at 4:4:4)
+JPEG_DECODINGS = ("jpeg_420", "jpeg_444")
 
 
-def ingest(raw: Path, out: Path, decoding: str) -> Path:
-    """The linear folder of ``raw`` ingested with ``decoding`` (a demosaic, or ``half``)."""
+def _seathru(*arguments: str) -> None:
+    subprocess.run([sys.executable, "-m", "seathru.cli", *arguments], check=True,
+                   capture_output=True, env={**os.environ, "PYTHONPATH": str(REPO / "src")})
+
+
+def ingest(simulated: Path, out: Path, decoding: str) -> Path:
+    """The linear folder of the simulated dive ingested with ``decoding`` (a demosaic of its
+    RAW files, ``half``, or one of :data:`JPEG_DECODINGS`)."""
+    if decoding in JPEG_DECODINGS:
+        if decoding == "jpeg_444":
+            simulated = _simulated_again(simulated, out / "simulate", "--jpeg-chroma", "4:4:4")
+        _seathru("ingest", "--input", str(simulated), "--subdir", "jpeg", "--out",
+                 str(out / "ingest"), "--workers", "2")
+        return out / "ingest" / "linear"
     flags = ["--half-size"] if decoding == "half" else ["--demosaic", decoding]
-    subprocess.run([sys.executable, "-m", "seathru.cli", "ingest", "--input", str(raw), "--out",
-                    str(out), "--workers", "2", *flags], check=True, capture_output=True,
-                   env={**os.environ, "PYTHONPATH": str(REPO / "src")})
+    _seathru("ingest", "--input", str(simulated / "raw"), "--out", str(out), "--workers", "2",
+             *flags)
     return out / "linear"
+
+
+def _simulated_again(simulated: Path, out: Path, *flags: str) -> Path:
+    """The dive of ``simulated`` simulated again into ``out`` with ``flags`` (from its recorded
+    scene and water; the raw mosaics checked to be the same)."""
+    import rawpy
+
+    scene = json.loads((simulated / "truth" / "scene.json").read_text())
+    water = json.loads((simulated / "truth" / "water.json").read_text())
+    raws = sorted((simulated / "raw").glob("*.dng"))
+    height, width = read_image(simulated / "truth" / "depth" / f"{raws[0].stem}.tiff").shape[:2]
+    _seathru("simulate", "--out", str(out), "--views", str(len(raws)), "--width", str(width),
+             "--height", str(height), "--path", scene["path"], "--seed", str(scene["seed"]),
+             "--fov-deg", str(scene["fov_deg"]), "--supersample", str(scene["supersample"]),
+             "--water", water["preset"].split("+")[0], "--sigma-attn",
+             *map(str, water["sigma_attn"]), "--sigma-bs", *map(str, water["sigma_bs"]),
+             "--c-med", *map(str, water["c_med"]), "--workers", "2", *flags)
+    for path in (raws[0], raws[-1]):
+        with rawpy.imread(str(path)) as mine, rawpy.imread(str(out / "raw" / path.name)) as new:
+            if not np.array_equal(mine.raw_image_visible, new.raw_image_visible):
+                raise SystemExit(f"{simulated}: simulated again, {path.name} differs (a "
+                                 "setting the truth folder does not record?)")
+    return out
 
 
 def decoded_image(linear: Path, name: str, half: bool) -> np.ndarray:
@@ -114,7 +151,8 @@ def trained_run(run: Path):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
-    parser.add_argument("--decodings", nargs="+", default=list(DECODINGS))
+    parser.add_argument("--decodings", nargs="+", default=list(DECODINGS),
+                        help=f"demosaics, half, or {', '.join(JPEG_DECODINGS)}")
     parser.add_argument("--per-view", type=int, default=3200)
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
@@ -134,7 +172,7 @@ def main() -> None:
     for run in args.runs:
         scale, truth, model = trained_run(run)
         with tempfile.TemporaryDirectory(prefix="refit_decoding_") as work:
-            folders = {name: ingest(run / "simulate" / "raw", Path(work) / name, name)
+            folders = {name: ingest(run / "simulate", Path(work) / name, name)
                        for name in args.decodings}
             rays, colours = observations(run, model, folders, args.per_view)
         open_water = ~torch.isfinite(rays["true"])
