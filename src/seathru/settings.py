@@ -33,8 +33,8 @@ Example::
 from __future__ import annotations
 
 import argparse
-import re
 import dataclasses
+import re
 import sys
 import types
 import typing
@@ -111,8 +111,8 @@ def _coerce(tp: Any, value: Any, name: str, length: int | None = None) -> Any:
     if isinstance(value, bool) and inner is str:
         value = _yaml11_word(value, ())
     if origin is Literal:
-        value = _yaml11_choice(value, typing.get_args(inner))
         choices = typing.get_args(inner)
+        value = _yaml11_choice(value, choices)
         if value not in choices:
             raise SettingsError(f"{name}: {value!r} is not one of "
                                 f"{', '.join(map(str, choices))}")
