@@ -526,9 +526,9 @@ def test_a_jpeg_cut_short_is_refused_and_a_whole_one_decodes(tmp_path, progressi
     (cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422, "4:2:2"),
     (cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420, "4:2:0")])
 def test_a_jpegs_chroma_sampling_is_recorded(tmp_path, factor, chroma):
-    """How the camera stored the colour goes into the manifest's decoder facts (4:2:0 takes
-    green and blue attenuation a few per cent low: docs/water.md); grey JPEGs and other
-    files have none."""
+    """How the camera stored the colour goes into the manifest's decoder facts (4:2:0 with
+    a camera's white balance took green and blue attenuation lower: docs/water.md); grey
+    JPEGs and other files have none."""
     colour = np.random.default_rng(4).integers(0, 255, (32, 48, 3), dtype=np.uint8)
     cv2.imwrite(str(tmp_path / "frame.jpg"), colour,
                 [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, factor])

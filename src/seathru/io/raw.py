@@ -557,8 +557,9 @@ CHROMA_SAMPLING = {0: "4:4:4", 1: "4:2:2", 2: "4:2:0"}
 def jpeg_chroma(path: str | Path) -> str | None:
     """How a colour JPEG stores its colour: ``"4:4:4"`` (every pixel), ``"4:2:2"`` or
     ``"4:2:0"`` (averaged over 2 x 1 or 2 x 2 pixels in the encoded values, as most cameras
-    write it; green and blue attenuation comes out a few per cent low from it,
-    docs/water.md); None for other files, grey JPEGs or a layout Pillow does not name."""
+    write it; with a camera's frame-by-frame white balance it took green and blue
+    attenuation lower, docs/water.md); None for other files, grey JPEGs or a layout Pillow
+    does not name."""
     from PIL import JpegImagePlugin
 
     try:
