@@ -70,8 +70,8 @@ def main() -> None:
     load_before, start = load_average(), time.time()
     if not args.summarise_only:
         sweep = {variant_name(m): f"train.max_minutes={m:g}" for m in longer}
-        run_sheet(args.work, [f"{DEMO}\tsimulated\t\ttrain.max_minutes={base:g}\t"
-                                     + ",".join(sweep)], args.cores, sweep=sweep)
+        row = f"{DEMO}\tsimulated\t\ttrain.max_minutes={base:g}\t" + ",".join(sweep)
+        run_sheet(args.work, [row], args.cores, sweep=sweep)
     longest = max(runs, key=runs.get)
     lines = [
         "# What a longer training budget buys the demo (`benchmarks/bench_budget.py`)", "",

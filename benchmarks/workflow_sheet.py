@@ -7,6 +7,7 @@ import argparse
 import csv
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -25,10 +26,12 @@ def run_sheet(work: Path, rows: list[str], cores: int, targets: tuple[str, ...] 
     to make (default: everything); ``sweep``: the config's sweep variants instead of the
     project's (variant name -> options)."""
     (work / "config").mkdir(parents=True, exist_ok=True)
-    config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
-    if sweep is not None:
+    if sweep is None:
+        shutil.copy(REPO / "config" / "config.yaml", work / "config" / "config.yaml")
+    else:
+        config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
         config["sweep"] = sweep
-    (work / "config" / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+        (work / "config" / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
     (work / "config" / "datasets.tsv").write_text("\n".join([SHEET_HEADER, *rows]) + "\n")
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
     subprocess.run([sys.executable, "-m", "snakemake", "--snakefile",
