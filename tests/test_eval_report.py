@@ -730,3 +730,21 @@ def test_a_colour_cast_that_changes_between_frames_warns_with_its_spread():
     assert warning["details"]["corrected"] is True
     summary.track_colour_slope["frame_colour"].update(spread=[0.038, 0.038], varies=False)
     assert evaluation_warnings(summary) == []                 # d3_reef's reading
+
+
+def test_a_held_out_view_no_training_photograph_sees_warns_naming_it():
+    metrics = pd.DataFrame({"view": ["dive_0000", "dive_0008", "dive_0016"],
+                            "unseen_surface_share": [0.158, 0.025, float("nan")]})
+    [warning] = evaluation_warnings(None, metrics)
+    assert warning["code"] == "held_out_view_unseen"
+    assert "held-out view dive_0000 (16% of its surface) shows surfaces" in warning["message"]
+    assert "dive_0008" not in warning["message"]
+    assert warning["details"]["unseen_surface_share"] == {"dive_0000": 0.158}
+    metrics["unseen_surface_share"] = [0.09, 0.0, 0.02]      # every view seen
+    assert evaluation_warnings(None, metrics) == []
+    metrics["unseen_surface_share"] = [0.387, 0.107, 0.132]  # d3_reef: its first view only
+    [warning] = evaluation_warnings(None, metrics)
+    assert list(warning["details"]["unseen_surface_share"]) == ["dive_0000"]
+    metrics["unseen_surface_share"] = [0.3, 0.25, 0.35]      # all alike: nothing stands out
+    assert evaluation_warnings(None, metrics) == []
+    assert evaluation_warnings(None, metrics.drop(columns="unseen_surface_share")) == []

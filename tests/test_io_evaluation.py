@@ -5,16 +5,19 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from seathru.errors import PipelineError
-from seathru.eval.summary import (TRUTH_COLUMNS, VIEW_COLUMNS, EvaluationSummary, MetricScale,
-                                  RenderSpeed, TrainingSummary, TruthSummary, WaterComparison)
+from seathru.eval.summary import (SUPPORT_COLUMNS, TRUTH_COLUMNS, VIEW_COLUMNS,
+                                  EvaluationSummary, MetricScale, RenderSpeed, TrainingSummary,
+                                  TruthSummary, WaterComparison)
 from seathru.io.cameras import CameraSet, Frame
 from seathru.io.evaluation import (EVALUATION_FORMAT, camera_centres, read_lpips_weights,
-                                   read_metrics, read_summary, read_train_log, write_metrics,
-                                   write_summary)
+                                   read_metrics, read_summary, read_train_log, view_support,
+                                   write_metrics, write_summary)
+from seathru.io.images import write_float_tiff
 from seathru.io.water import WaterReport
 
 WATER = WaterReport.from_parameters({"mode": "global", "sigma_attn": [0.8, 0.4, 0.3],
@@ -92,6 +95,31 @@ def test_metrics_round_trip_keeps_the_contract_columns(tmp_path):
     assert list(table.columns) == [*VIEW_COLUMNS, *TRUTH_COLUMNS]
     assert list(table["view"]) == ["000", "001"]     # names stay text
     assert list(table["psnr_linear"]) == [30.0, 31.0]
+
+
+def test_a_views_unseen_surface_comes_from_its_support_and_opacity(tmp_path):
+    """The share of the rendered surface (opacity >= 0.5) no training photograph backs at all
+    (support 0), from the render step's files; open water does not count."""
+    folder = tmp_path / "test" / "v"
+    folder.mkdir(parents=True)
+    opacity = np.ones((4, 5), np.float32)
+    opacity[0] = 0.1                                      # a row of open water
+    support = np.full((4, 5), 2.0, np.float32)
+    support[0] = 0.0                                      # unseen, but water: not counted
+    support[1, :3] = 0.0                                  # 3 of the 15 surface pixels unseen
+    support[2, 0] = np.nan                                # no source: unseen
+    write_float_tiff(folder / "opacity.tiff", opacity)
+    assert view_support(tmp_path, "v") == {}              # no restored_support written
+    write_float_tiff(folder / "restored_support.tiff", support)
+    assert view_support(tmp_path, "v") == {"unseen_surface_share": pytest.approx(4 / 15)}
+    write_float_tiff(folder / "opacity.tiff", np.zeros((4, 5), np.float32))
+    assert view_support(tmp_path, "v") == {}              # nothing but water
+    rows = [{"dataset": "d", "view": "v", "psnr_linear": 30.0, "ssim_linear": 0.9,
+             "psnr_srgb": 28.0, "ssim_srgb": 0.8, "lpips": "unavailable",
+             "unseen_surface_share": 0.25}]
+    write_metrics(tmp_path / "metrics.csv", rows)
+    assert list(read_metrics(tmp_path / "metrics.csv").columns) == [*VIEW_COLUMNS,
+                                                                      *SUPPORT_COLUMNS]
 
 
 def test_metrics_without_a_contract_column_is_refused(tmp_path):

@@ -27,6 +27,10 @@ log = logging.getLogger(__name__)
 UNAVAILABLE = "unavailable"
 IMAGE_COLUMNS = ("psnr_linear", "ssim_linear", "psnr_srgb", "ssim_srgb")
 VIEW_COLUMNS = ("dataset", "view", *IMAGE_COLUMNS, "lpips")
+#: Columns a view has where its renders allow (the render step's ``restored_support``).
+SUPPORT_COLUMNS = ("unseen_surface_share",)
+#: Below this opacity a rendered pixel is open water, not a surface of the view.
+SURFACE_OPACITY = 0.5
 TRUTH_COLUMNS = ("restored_psnr_linear", "restored_ssim_linear", "restored_psnr_srgb",
                  "restored_ssim_srgb", "full_vs_clean_psnr_linear", "full_vs_clean_ssim_linear",
                  "full_vs_water_psnr_linear", "depth_median_abs_rel", "depth_corr",
@@ -48,6 +52,7 @@ class ViewMetrics(TypedDict):
     psnr_srgb: float
     ssim_srgb: float
     lpips: float | str                          # a number or "unavailable"
+    unseen_surface_share: NotRequired[float]    # of its surface, no training photograph sees
     restored_psnr_linear: NotRequired[float]    # the truth columns: simulated datasets only
     restored_ssim_linear: NotRequired[float]
     restored_psnr_srgb: NotRequired[float]
@@ -185,7 +190,37 @@ def metrics_table(rows: list[ViewMetrics]) -> pd.DataFrame:
     missing = [c for c in VIEW_COLUMNS if c not in table.columns]
     if missing:
         raise ValueError(f"metrics rows lack the columns {missing}")
-    return table[[*VIEW_COLUMNS, *(c for c in TRUTH_COLUMNS if c in table.columns)]]
+    return table[[*VIEW_COLUMNS, *(c for c in (*SUPPORT_COLUMNS, *TRUTH_COLUMNS)
+                                   if c in table.columns)]]
+
+
+def unseen_surface_share(support: np.ndarray, opacity: np.ndarray) -> float | None:
+    """The share of a held-out view's surface that no training photograph sees.
+
+    A held-out view at the end of a camera path can show surfaces no training view does (the
+    foreground in front of the path's first frame); its scores there measure the model's guess,
+    not the reconstruction. Found with the model's own depth, so it works without a truth.
+
+    Args:
+        support: ``(H, W)`` the render step's ``restored_support``: how much the training
+            photographs back each pixel (``seathru.nerf.reproject``; 0 where no training view
+            sees the pixel's surface unhidden).
+        opacity: ``(H, W)`` the rendered object opacity; the view's surface is where it is at
+            least :data:`SURFACE_OPACITY`.
+
+    Returns:
+        the share in [0, 1], or None where the view shows no surface.
+
+    Example::
+
+        unseen_surface_share(read_image(".../restored_support.tiff"),
+                             read_image(".../opacity.tiff"))   # 0.16 for the demo's first view
+    """
+    surface = np.nan_to_num(np.asarray(opacity, dtype=np.float64)) >= SURFACE_OPACITY
+    if not surface.any():
+        return None
+    unseen = surface & ~(np.nan_to_num(np.asarray(support, dtype=np.float64)) > 0.0)
+    return float(unseen.sum() / surface.sum())
 
 
 def view_means(table: pd.DataFrame) -> dict[str, float | str]:

@@ -145,6 +145,22 @@ def read_render(renders: str | os.PathLike, view: str, name: str) -> np.ndarray:
     return read_image(path)
 
 
+def view_support(renders: str | os.PathLike, view: str) -> dict[str, float]:
+    """A held-out view's support columns (``unseen_surface_share``) from its renders, or {}
+    where the render step wrote no ``restored_support`` (``render.photos.restore none``)."""
+    folder = Path(renders) / "test" / view
+    support, opacity = folder / f"{RESTORED_SUPPORT}.tiff", folder / "opacity.tiff"
+    if not (support.is_file() and opacity.is_file()):
+        return {}
+    share = dataset_summary.unseen_surface_share(_plane(read_image(support)),
+                                                 _plane(read_image(opacity)))
+    return {} if share is None else {"unseen_surface_share": share}
+
+
+def _plane(image: np.ndarray) -> np.ndarray:
+    return image[..., 0] if image.ndim == 3 else image
+
+
 def camera_centres(cameras: CameraSet, *, source_units: bool = False) -> dict[str, np.ndarray]:
     """Camera centres ``(3,)`` by frame name: in the file's normalised units, or with
     ``source_units`` in the units of the source reconstruction (``c / scale + centre``; metres
@@ -281,7 +297,7 @@ def _supported(support: np.ndarray) -> np.ndarray:
     """The pixels the training photographs back (``seathru.nerf.reproject.SUPPORTED``)."""
     from seathru.nerf.reproject import SUPPORTED
 
-    return np.nan_to_num(support[..., 0] if support.ndim == 3 else support) >= SUPPORTED
+    return np.nan_to_num(_plane(support)) >= SUPPORTED
 
 
 def truth_evaluation(truth_dir: Path, renders: Path, cameras: CameraSet, rows: list[dict],

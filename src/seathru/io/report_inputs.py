@@ -96,7 +96,7 @@ def collect_record(row: pd.Series, results: Path, logs: Path | None, step_order:
         record.training_run or {}).get("stopped_by")
     record.warnings = read_dataset_warnings(base, step_order) + training_warnings(
         selection, record.train_log, stopped, rising_db, window) + evaluation_warnings(
-        record.summary)
+        record.summary, record.metrics)
     record.warnings.sort(key=lambda w: step_order.index(w["step"]) if w["step"] in step_order
                          else len(step_order))
     return record

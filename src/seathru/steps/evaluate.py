@@ -37,7 +37,7 @@ from seathru.eval import summary as dataset_summary
 from seathru.io.cameras import CameraSet, Frame, read_cameras
 from seathru.io.chart import evaluate_colour_chart, find_annotation
 from seathru.io.evaluation import (load_lpips, read_render, read_train_log, resized_like,
-                                   truth_evaluation, write_metrics, write_summary)
+                                   truth_evaluation, view_support, write_metrics, write_summary)
 from seathru.io.frontier import FRONTIER_NAME, frontier_table, write_frontier
 from seathru.io.atomic import write_json
 from seathru.io.images import read_image
@@ -109,7 +109,8 @@ def run(args: argparse.Namespace) -> None:
     for frame in views:
         full = read_render(args.renders, frame.name, "full")
         target = resized_like(read_image(cameras.image_path(frame)), full)
-        rows.append(dataset_summary.view_metrics(dataset, frame.name, full, target, lpips_net))
+        rows.append({**dataset_summary.view_metrics(dataset, frame.name, full, target, lpips_net),
+                     **view_support(args.renders, frame.name)})
         log.info("%s: PSNR %.2f dB, SSIM %.4f (linear)", frame.name, rows[-1]["psnr_linear"],
                  rows[-1]["ssim_linear"])
 
@@ -148,8 +149,7 @@ def run(args: argparse.Namespace) -> None:
 
 
 def _colour_chart(cfg: Settings, cameras: CameraSet, args: argparse.Namespace) -> dict:
-    """The chart's measurement, or why there is none (no ingest manifest: a hand-made camera
-    file)."""
+    """The chart's measurement, or why there is none (no manifest: a hand-made camera file)."""
     ingest = ingest_folder_of(cameras)
     if not (ingest / "manifest.json").is_file():
         return {"source": "none", "reason": f"{ingest / 'manifest.json'} not found"}
