@@ -7,7 +7,8 @@ as sweep variants on the same COLMAP cameras, for longer.
 Writes ``benchmarks/results/budget.md``: per budget the training steps, the held-out PSNR, the
 restored render against the clean truth (and on the pixels two training views see), with the
 photographs' detail reprojected, the restored photographs, and the fitted water's signed error
-per channel (``?``: flagged as not determined; ``!``: its interval misses the truth); and, from
+per channel (``?``: flagged as not determined; ``!``: its interval misses the truth), each
+held-out view's unseen surface share with its held-out PSNR; and, from
 the longest run's quality snapshots, the restored render against the clean truth over its
 training time (at the snapshots' reduced resolution, so not comparable with the table's
 figures, only along the curve). ``--summarise-only`` tabulates a finished ``--work``.
@@ -20,7 +21,8 @@ import time
 from pathlib import Path
 
 from machine import footer, load_average
-from workflow_sheet import metric_mean, read_run, run_sheet, sheet_arguments, water_cells
+from workflow_sheet import (metric_mean, read_run, run_sheet, sheet_arguments, unseen_cell,
+                            water_cells)
 
 OUT = Path(__file__).resolve().parent / "results" / "budget.md"
 DEMO = "demo"
@@ -33,7 +35,7 @@ def variant_name(minutes: float) -> str:
 def budget_row(work: Path, run: str, minutes: float) -> str:
     finished = read_run(work, run)
     if finished is None:
-        return f"| {minutes:g} | failed (see {work}/logs/{run}) |" + " |" * 7
+        return f"| {minutes:g} | failed (see {work}/logs/{run}) |" + " |" * 8
     summary, rows = finished
     training = summary.get("training") or {}
     water = (summary.get("truth") or {}).get("water")
@@ -43,7 +45,8 @@ def budget_row(work: Path, run: str, minutes: float) -> str:
             f"{metric_mean(rows, 'reprojected_restored_psnr_linear')} "
             f"({metric_mean(rows, 'reprojected_restored_psnr_linear_covered')}) | "
             f"{metric_mean(rows, 'photo_restored_psnr_linear')} | "
-            + " | ".join(water_cells(water) if water else ["-"] * 3) + " |")
+            + " | ".join(water_cells(water) if water else ["-"] * 3)
+            + f" | {unseen_cell(rows)} |")
 
 
 def curve_lines(work: Path, run: str) -> list[str]:
@@ -81,10 +84,11 @@ def main() -> None:
         "the restored render against the clean truth (in brackets on the pixels two training "
         "views see); reprojected: with the training photographs' detail; water as signed "
         "error against the truth (R, G, B; `?` flagged as not determined, `!` the interval "
-        "misses the truth).", "",
+        "misses the truth); unseen: each held-out view's `unseen_surface_share` (its surface "
+        "no training photograph sees, by the model's depth) with its held-out PSNR.", "",
         "| budget (min) | steps | held-out PSNR | restored (covered) | reprojected (covered) "
-        "| restored photographs | `sigma_attn` | `sigma_bs` | `c_med` |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| restored photographs | `sigma_attn` | `sigma_bs` | `c_med` | unseen (PSNR) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
         *(budget_row(args.work, run, m) for run, m in runs.items()), "",
         f"The {runs[longest]:g}-minute run's quality snapshots (held-out and restored PSNR at "
         "the snapshots' reduced resolution; the water refits come at fixed shares of the "

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from machine import footer, load_average
 from workflow_sheet import (REPO, metric_mean, read_run, run_sheet, sheet_arguments,
-                            water_cells)
+                            unseen_cell, water_cells)
 
 REEF = REPO.parent / "shared" / "data" / "d3_reef"
 OUT = REPO / "benchmarks" / "results" / "camera_jpeg.md"
@@ -51,21 +51,18 @@ def run_workflow(work: Path, cores: int) -> None:
 def arm_row(work: Path, name: str, options: str) -> str:
     finished = read_run(work, name)
     if finished is None:
-        return f"| {name} | `{options}` | failed (see {work}/logs/{name}) |" + " |" * 8
+        return f"| {name} | `{options}` | failed (see {work}/logs/{name}) |" + " |" * 9
     summary, rows = finished
-
-    def mean(key: str) -> str:
-        return metric_mean(rows, key)
-
     cast = (summary.get("track_colour_slope") or {}).get("frame_colour") or {}
     spread = ", ".join(f"{v:.3f}" for v in cast.get("spread") or []) or "-"
     corrected = (summary.get("medium_selection") or {}).get("frame_colour_correction")
     water = (summary.get("truth") or {}).get("water")
-    return (f"| {name} | `{options}` | {mean('psnr_linear')} | "
-            f"{mean('restored_psnr_linear')} ({mean('restored_psnr_linear_covered')}) "
-            f"| {mean('photo_restored_psnr_linear')} | "
+    return (f"| {name} | `{options}` | {metric_mean(rows, 'psnr_linear')} | "
+            f"{metric_mean(rows, 'restored_psnr_linear')} "
+            f"({metric_mean(rows, 'restored_psnr_linear_covered')}) "
+            f"| {metric_mean(rows, 'photo_restored_psnr_linear')} | "
             + " | ".join(water_cells(water) if water else ["-"] * 3)
-            + f" | {spread} | {'yes' if corrected else 'no'} |")
+            + f" | {spread} | {'yes' if corrected else 'no'} | {unseen_cell(rows)} |")
 
 
 def main() -> None:
@@ -88,10 +85,12 @@ def main() -> None:
         "red / green and blue / green beyond what the points and their ranges explain along "
         "the COLMAP tracks, against the median frame (`colour_varies_between_frames` above "
         "0.08); corrected: trained on "
-        "the photographs brought to the median frame's cast (`train.frame_colour`).", "",
+        "the photographs brought to the median frame's cast (`train.frame_colour`); unseen: "
+        "each held-out view's `unseen_surface_share` (its surface no training photograph "
+        "sees, by the model's depth) with its held-out PSNR.", "",
         "| arm | options | held-out PSNR | restored render (covered) | restored photographs "
-        "| `sigma_attn` | `sigma_bs` | `c_med` | frame colour | corrected |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| `sigma_attn` | `sigma_bs` | `c_med` | frame colour | corrected | unseen (PSNR) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
         *(arm_row(args.work, name, options) for name, options in arms.items()), "",
         footer(load_before, start),
     ]

@@ -71,6 +71,15 @@ def water_cells(water: dict) -> list[str]:
     return cells
 
 
+def unseen_cell(rows: list[dict]) -> str:
+    """Each held-out view's ``unseen_surface_share`` with its held-out PSNR in brackets
+    (``0.16 (25.5), ...``), ``-`` where the evaluation has no such column."""
+    if not rows or not rows[0].get("unseen_surface_share"):
+        return "-"
+    return ", ".join(f"{float(row['unseen_surface_share']):.2f} "
+                     f"({float(row['psnr_linear']):.1f})" for row in rows)
+
+
 def metric_mean(rows: list[dict], key: str) -> str:
     """The mean of a ``metrics.csv`` column over its views, two decimals, ``-`` if none."""
     values = [float(row[key]) for row in rows if row.get(key)]
