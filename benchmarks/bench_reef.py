@@ -73,7 +73,7 @@ def track_scores(run: Path, cameras_path: Path) -> dict:
     slope the full render (with water) follows, over all tracks."""
     import torch
 
-    from seathru.eval.report import followed_share
+    from seathru.eval.report_tracks import followed_share
     from seathru.eval.track_slope import colour_slope_summary, far_tracks
     from seathru.io.model import load_model
     from seathru.io.tracks import (SPARSE_DIR, opacity_in_front, rendered_colours,

@@ -1,5 +1,6 @@
-"""The report's domain code (seathru.eval.report) and the per-dataset summary
-(seathru.eval.summary): failure diagnosis, the summary table, the HTML template."""
+"""The report's table and page (seathru.eval.report): the summary table, the HTML template, the
+water plot, protocol and chart columns, the settings chosen. The fixtures here serve the tests
+of the report's other modules too."""
 
 from __future__ import annotations
 
@@ -10,47 +11,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from seathru.eval import summary as dataset_summary
-from seathru.eval.report import (NOT_RUN, DatasetRecord, StepLog, diagnose_failure,
-                                 evaluation_warnings, held_out_plateau, medium_name, psnr_rise,
-                                 render_html, stopped_by, summary_table, training_warnings)
+from seathru.eval.report import render_html, summary_table
+from seathru.eval.report_records import DatasetRecord
 from seathru.eval.summary import EvaluationSummary, RenderSpeed, TrainingSummary
-from seathru.steps import STEP_ORDER
 
 PNG = b"\x89PNG\r\n\x1a\n" + bytes(range(40))
 
 
-def test_failure_is_the_last_error_line_of_the_newest_log_with_one():
-    logs = [StepLog("poses", 100.0, ["seathru poses: error: stale"]),
-            StepLog("ingest", 200.0, ["seathru ingest: error: first", "warning",
-                                      "seathru ingest: error: the real one  ", "done"]),
-            StepLog("train", 300.0, ["step 10 loss 0.1"])]
-    assert diagnose_failure(logs, STEP_ORDER) == ("ingest", "the real one")
-
-
-def test_failure_without_error_lines_quotes_the_newest_log():
-    logs = [StepLog("ingest", 1.0, ["ok"]),
-            StepLog("train", 2.0, ["Traceback", "RuntimeError: CUDA out of memory", ""])]
-    step, message = diagnose_failure(logs, STEP_ORDER)
-    assert step == "train"
-    assert message == "no 'error:' line; last line of train.log: RuntimeError: CUDA out of memory"
-    assert diagnose_failure([], STEP_ORDER) == (None, NOT_RUN)
-
-
-def test_failure_ties_go_to_the_later_step():
-    logs = [StepLog("train", 5.0, ["seathru train: error: late"]),
-            StepLog("poses", 5.0, ["seathru poses: error: early"])]
-    assert diagnose_failure(logs, STEP_ORDER) == ("train", "late")
-
-
-def test_medium_name_reads_the_selection():
-    assert medium_name({"chosen": "global", "reason": "x"}) == "global"
-    assert medium_name({"final_mode": "view", "mode": "auto"}) == "view"
-    assert medium_name(None) is None
-    assert medium_name({"other": 1}) == '{"other": 1}'
-
-
-def _summary(dataset: str, psnr: float, fps: float | None = 20.0) -> EvaluationSummary:
+def evaluation_summary(dataset: str, psnr: float, fps: float | None = 20.0) -> EvaluationSummary:
     return EvaluationSummary(dataset=dataset, views=3,
                              means={"psnr_linear": psnr, "lpips": "unavailable"},
                              lpips="unavailable: no --lpips-weights given",
@@ -60,7 +28,7 @@ def _summary(dataset: str, psnr: float, fps: float | None = 20.0) -> EvaluationS
 
 
 def test_summary_table_rows_and_columns():
-    records = [DatasetRecord("a", summary=_summary("a", 30.0)),
+    records = [DatasetRecord("a", summary=evaluation_summary("a", 30.0)),
                DatasetRecord("b", status="failed", failed_step="train", error="boom",
                              train_log=pd.DataFrame({"wall_time_s": [1.0, 7.5]}))]
     table = summary_table(records)
@@ -75,7 +43,7 @@ def test_summary_table_rows_and_columns():
 
 def test_html_escapes_names_and_messages_and_inlines_images():
     evil = "<b>dive</b>&1"
-    records = [DatasetRecord(evil, summary=_summary(evil, 30.0)),
+    records = [DatasetRecord(evil, summary=evaluation_summary(evil, 30.0)),
                DatasetRecord("x<y", status="failed", failed_step="ingest",
                              error="<script>alert('no')</script>")]
     page = render_html(summary_table(records), records, {"psnr_vs_time.png": PNG},
@@ -89,112 +57,15 @@ def test_html_escapes_names_and_messages_and_inlines_images():
     assert "<td>30</td>" in page and "<td>—</td>" in page   # numbers 4 significant, gaps dashed
 
 
-def test_view_means_and_lpips_status():
-    table = pd.DataFrame({"dataset": ["d", "d"], "view": ["a", "b"], "psnr_linear": [30.0, 32.0],
-                          "lpips": ["unavailable", "unavailable"]})
-    assert dataset_summary.view_means(table) == {"psnr_linear": 31.0, "lpips": "unavailable"}
-    table["lpips"] = [0.1, 0.3]
-    assert dataset_summary.view_means(table)["lpips"] == pytest.approx(0.2)
-    assert dataset_summary.lpips_network(None, None) == (None, "unavailable: no --lpips-weights "
-                                                               "given")
-    assert dataset_summary.lpips_network(None, "w.pth") == (None, "unavailable: w.pth not found")
-    with pytest.raises(ValueError, match="lin0..lin4"):
-        dataset_summary.lpips_network({}, "w.pth")
-
-
-def test_training_summary_from_the_log():
-    log = pd.DataFrame({"step": [0, 50, 100], "wall_time_s": [0.5, 20.0, 41.5],
-                        "loss": [0.1, 0.01, 0.005], "test_psnr": [9.0, np.nan, np.nan]})
-    training = dataset_summary.training_summary(log)
-    assert training == TrainingSummary(time_s=41.5, steps=100, final_loss=0.005,
-                                       final_test_psnr=9.0)
-    assert dataset_summary.training_summary(None) is None
-    assert dataset_summary.training_summary(pd.DataFrame({"step": [1]})) is None
-
-
-# -- warnings: "needs a look" ------------------------------------------------------------------
-
-def _log(times, test=None, train=None) -> pd.DataFrame:
-    data = {"wall_time_s": times}
-    if test is not None:
-        data["test_psnr"] = test
-    if train is not None:
-        data["train_psnr"] = train
-    return pd.DataFrame(data)
-
-
-def test_psnr_rise_over_the_last_share_of_time():
-    rise = psnr_rise(_log([0.0, 50.0, 80.0, 100.0], test=[10.0, 20.0, 24.0, 25.0]))
-    assert rise["column"] == "test_psnr" and rise["from_s"] == 80.0
-    assert rise["rise_db"] == pytest.approx(1.0) and rise["final_psnr"] == 25.0
-    # interpolated at 80 s between 50 s (20 dB) and 100 s (26 dB); NaN rows skipped
-    rise = psnr_rise(_log([0.0, 50.0, 75.0, 100.0], test=[10.0, 20.0, np.nan, 26.0]))
-    assert rise["rise_db"] == pytest.approx(26.0 - 23.6)
-    # held-out values only at the end: the training PSNR is used
-    rise = psnr_rise(_log([0.0, 90.0, 100.0], test=[np.nan, 20.0, 21.0],
-                          train=[5.0, 19.0, 22.0]), window=0.5)
-    assert rise["column"] == "train_psnr"
-    assert rise["rise_db"] == pytest.approx(22.0 - (5.0 + 14.0 * 50.0 / 90.0))
-    assert psnr_rise(None) is None and psnr_rise(_log([0.0], test=[1.0])) is None
-
-
-def test_stopped_by_reads_the_train_log():
-    lines = ["step 5: medium 'global'", "trained 300 steps in 7 s (stopped by time; 37.2 "
-             "steps/s, 19066 rays/s); held-out PSNR 19.25 dB; medium global"]
-    assert stopped_by(lines) == "time"
-    assert stopped_by(["trained 1 steps in 1 s (stopped by steps)"]) == "steps"
-    assert stopped_by(["nothing"]) is None
-
-
-def test_training_warnings_for_water_off_and_rising_psnr():
-    rising = _log([0.0, 80.0, 100.0], test=[10.0, 20.0, 23.0])
-    found = training_warnings({"requested": "auto", "chosen": "off", "final_mode": "off",
-                               "reason": "fitted water is negligible"}, rising, "time",
-                              rising_db=1.0)
-    assert [w["code"] for w in found] == ["water_model_off", "not_converged"]
-    assert all(w["step"] == "train" for w in found)
-    assert "fitted water is negligible" in found[0]["message"]
-    assert "train.medium.mode=global" in found[0]["message"]
-    assert "3.00 dB" in found[1]["message"] and "time budget" in found[1]["message"]
-    assert "train.max_minutes" in found[1]["message"]
-    assert found[1]["details"]["stopped_by"] == "time"
-    steps = training_warnings(None, rising, "steps")
-    assert "raise train.steps" in steps[0]["message"]
-    # asked for no water, or converged: nothing to look at
-    assert training_warnings({"requested": "off", "chosen": "off"},
-                             _log([0.0, 80.0, 100.0], test=[10.0, 22.9, 23.0])) == []
-    assert training_warnings({"requested": "auto", "final_mode": "global"}, rising,
-                             rising_db=5.0) == []
-
-
-def test_a_held_out_psnr_that_stops_early_while_training_goes_on_is_flagged():
-    # d3_reef's 15-min run, thinned: held-out flat at 16.4-16.8 dB from 7 s on
-    reef = _log([0.06, 3.9, 7.1, 34.3, 129.1, 481.9, 900.0],
-                test=[14.4, 16.46, 16.74, 16.63, 16.61, 16.78, 16.68],
-                train=[14.1, 17.58, 17.94, 18.53, 19.46, 21.16, 21.57])
-    plateau = held_out_plateau(reef)
-    assert plateau["reached_s"] == pytest.approx(7.1)
-    assert plateau["train_rise_db"] == pytest.approx(21.57 - 17.94)
-    found = training_warnings({"requested": "auto", "final_mode": "veiling"}, reef, "time")
-    assert [w["code"] for w in found] == ["held_out_plateau"]
-    assert "16.78 dB" in found[0]["message"] and "7.1 s of 900 s" in found[0]["message"]
-    # a held-out PSNR that rises with the training one (the demo): no warning
-    demo = _log([0.1, 10.0, 60.0, 120.0, 180.0], test=[14.0, 22.0, 26.0, 27.6, 28.4],
-                train=[14.0, 22.5, 27.0, 28.5, 29.5])
-    assert held_out_plateau(demo) is None
-    # an early plateau while the training PSNR also stalls: converged, not overfitting
-    stalled = _log([0.1, 5.0, 60.0, 180.0], test=[14.0, 20.0, 20.1, 20.0],
-                   train=[14.0, 21.0, 21.5, 21.9])
-    assert held_out_plateau(stalled) is None
-    assert held_out_plateau(None) is None
-    assert held_out_plateau(_log([0.0, 1.0], test=[1, 2])) is None
+# -- "needs a look" ----------------------------------------------------------------------------
 
 
 def test_summary_table_and_html_mark_datasets_with_warnings():
     look = {"step": "poses", "code": "unconfirmed_poses",
             "message": "the camera model was not confirmed <attempts 1 and 2>", "details": {}}
-    records = [DatasetRecord("calm", summary=_summary("calm", 30.0)),
-               DatasetRecord("doubtful", summary=_summary("doubtful", 25.0), warnings=[look])]
+    records = [DatasetRecord("calm", summary=evaluation_summary("calm", 30.0)),
+               DatasetRecord("doubtful", summary=evaluation_summary("doubtful", 25.0),
+                             warnings=[look])]
     table = summary_table(records).set_index("dataset")
     assert table.loc["calm", "warnings"] == 0 and pd.isna(table.loc["calm", "needs_a_look"])
     assert table.loc["doubtful", "warnings"] == 1
@@ -291,12 +162,12 @@ def _protocol(psnr: float, ssim: float, lpips: float | None = None) -> dict:
 
 def test_protocol_and_chart_columns_only_where_measured_protocol_beside_ours():
     reference = _reference_linear()
-    reef, lagoon = _summary("reef", 30.0), _summary("lagoon", 25.0)
+    reef, lagoon = evaluation_summary("reef", 30.0), evaluation_summary("lagoon", 25.0)
     reef.protocol = _protocol(27.5, 0.81, 0.2)
     reef.colour_chart = _chart({"stored": 0.3 * reference * CAST, "ingest": 0.5 * reference,
                                 "restored": 0.4 * reference * np.sqrt(CAST)})
     lagoon.colour_chart = _chart({"ingest": 0.5 * reference * CAST, "restored": None})
-    plain = _summary("plain", 28.0)
+    plain = evaluation_summary("plain", 28.0)
     plain.colour_chart = {"source": "none", "reason": "no annotation; OpenCV mcc found none"}
     records = [DatasetRecord("reef", summary=reef), DatasetRecord("lagoon", summary=lagoon),
                DatasetRecord("plain", summary=plain),
@@ -327,12 +198,12 @@ def test_protocol_and_chart_columns_only_where_measured_protocol_beside_ours():
 
 def test_html_labels_the_protocol_and_shows_charts_in_their_own_table():
     reference = _reference_linear()
-    reef = _summary("reef", 30.0)
+    reef = evaluation_summary("reef", 30.0)
     reef.protocol = _protocol(27.5, 0.81)
     reef.colour_chart = _chart({"stored": 0.3 * reference * CAST,
                                 "ingest": 0.5 * reference * np.sqrt(CAST), "restored": None})
-    records = [DatasetRecord("reef", summary=reef), DatasetRecord("plain",
-                                                                   summary=_summary("p", 20.0))]
+    records = [DatasetRecord("reef", summary=reef),
+               DatasetRecord("plain", summary=evaluation_summary("p", 20.0))]
     table = summary_table(records)
     page = render_html(table, records, {}, {}, "now", charts={"reef": PNG})
     summary = page.split('<table class="summary">')[1].split("</table>")[0]
@@ -399,43 +270,19 @@ AUTO_CAPACITY = {"requested": "auto", "chosen": "fast", "changed": {"field.plane
                  "reason": "fast: finest tri-plane 256 cells <for> a scene of 180 footprints"}
 
 
-def _chosen(dataset: str, capacity: dict | None, run: dict | None, psnr: float = 25.0,
+def chosen_record(dataset: str, capacity: dict | None, run: dict | None, psnr: float = 25.0,
             **record) -> DatasetRecord:
     selection = {"requested": "auto", "chosen": "global", "final_mode": "global",
                  "reason": "backscatter & attenuation <measurable>"}
     if capacity is not None:
         selection["capacity"] = capacity
-    return DatasetRecord(dataset, summary=_summary(dataset, psnr), selection=selection,
+    return DatasetRecord(dataset, summary=evaluation_summary(dataset, psnr), selection=selection,
                          training_run=run, **record)
 
 
-def test_capacity_level_and_passes_from_the_selection_and_the_model():
-    from seathru.eval.report import capacity_level, training_passes
-
-    auto = _chosen("a", AUTO_CAPACITY, {"steps": 300, "batch_rays": 1024, "preset": "auto"})
-    assert capacity_level(auto) == "auto \u2192 fast"
-    assert training_passes(auto) == pytest.approx(300 * 1024 / 20480)
-    named = _chosen("q", {"requested": "quality", "chosen": "quality"},
-                    {"steps": 300, "batch_rays": 1024, "preset": "quality"})
-    assert capacity_level(named) == "quality"
-    assert training_passes(named) is None                 # a named preset records no scene
-    # older runs: no capacity record; the preset of model.pt's config, else nothing
-    assert capacity_level(_chosen("o", None, {"steps": 10, "preset": "balanced"})) == "balanced"
-    old = _chosen("o", None, None)
-    assert capacity_level(old) is None and training_passes(old) is None
-    for run in ({"batch_rays": 1024}, {"steps": 300}, {"steps": 0, "batch_rays": 1024}, None):
-        assert training_passes(_chosen("x", AUTO_CAPACITY, run)) is None
-    # the evaluation summary's copy of selection.json serves when the record has none
-    copied = DatasetRecord("c", summary=_summary("c", 20.0),
-                           training_run={"steps": 20, "batch_rays": 2048})
-    copied.summary.medium_selection = {"chosen": "off", "capacity": AUTO_CAPACITY}
-    assert capacity_level(copied) == "auto \u2192 fast"
-    assert training_passes(copied) == pytest.approx(2.0)
-
-
 def test_summary_table_shows_capacity_and_passes_only_where_recorded():
-    records = [_chosen("auto", AUTO_CAPACITY, {"steps": 100, "batch_rays": 2048}),
-               _chosen("named", {"requested": "quality", "chosen": "quality"},
+    records = [chosen_record("auto", AUTO_CAPACITY, {"steps": 100, "batch_rays": 2048}),
+               chosen_record("named", {"requested": "quality", "chosen": "quality"},
                        {"steps": 100, "batch_rays": 2048}),
                DatasetRecord("broken", status="failed", failed_step="train", error="boom")]
     table = summary_table(records)
@@ -448,13 +295,13 @@ def test_summary_table_shows_capacity_and_passes_only_where_recorded():
     assert rows.loc["named", "capacity"] == "quality" and pd.isna(rows.loc["named", "passes"])
     assert pd.isna(rows.loc["broken", "capacity"])
     assert rows.loc["auto", "medium"] == "global"          # from the record's selection
-    old = summary_table([DatasetRecord("old", summary=_summary("old", 20.0))])
+    old = summary_table([DatasetRecord("old", summary=evaluation_summary("old", 20.0))])
     assert "capacity" not in old.columns and "passes" not in old.columns
 
 
 def test_html_says_why_each_setting_was_chosen_escaped():
-    records = [_chosen("reef", AUTO_CAPACITY, {"steps": 100, "batch_rays": 2048}),
-               _chosen("reef+quality", {"requested": "quality", "chosen": "quality"}, None,
+    records = [chosen_record("reef", AUTO_CAPACITY, {"steps": 100, "batch_rays": 2048}),
+               chosen_record("reef+quality", {"requested": "quality", "chosen": "quality"}, None,
                        base="reef", variant="quality"),
                DatasetRecord("pending", status="failed", error="not run")]
     page = render_html(summary_table(records), records, {}, {}, "now")
@@ -478,7 +325,7 @@ def test_html_says_why_each_setting_was_chosen_escaped():
 
 
 def test_html_says_how_far_the_object_field_was_sampled():
-    record = _chosen("survey", AUTO_CAPACITY, None)
+    record = chosen_record("survey", AUTO_CAPACITY, None)
     record.selection["far_factor"] = {"requested": "auto", "chosen": 3.0,
                                       "reason": "22.4% of the pixels are open water <one colour>"}
     page = render_html(summary_table([record]), [record], {}, {}, "now")
@@ -496,10 +343,10 @@ def test_frontier_labels_each_run_with_its_capacity_level():
     from seathru.eval.frontier import frontier_summary
     from seathru.eval.report_plots import plot_frontier
 
-    runs = [_chosen("demo", AUTO_CAPACITY, {"steps": 100, "batch_rays": 1024}, 24.0),
-            _chosen("demo+quality", {"requested": "quality", "chosen": "quality"},
+    runs = [chosen_record("demo", AUTO_CAPACITY, {"steps": 100, "batch_rays": 1024}, 24.0),
+            chosen_record("demo+quality", {"requested": "quality", "chosen": "quality"},
                     {"steps": 100, "batch_rays": 1024}, 25.0, base="demo", variant="quality"),
-            _chosen("demo+old", None, None, 23.0, base="demo", variant="old")]
+            chosen_record("demo+old", None, None, 23.0, base="demo", variant="old")]
     for run in runs:
         run.summary.render.seconds_per_frame = 0.5
     table = frontier_summary(runs).set_index("run")
@@ -521,7 +368,7 @@ def test_frontier_labels_each_run_with_its_capacity_level():
 BETA = np.array([0.4, 0.2, 0.1])   # the water's attenuation per unit range, R G B
 
 
-def _track_slope(removed: float, held_out: bool = True, seed: int = 0,
+def track_slope_record(removed: float, held_out: bool = True, seed: int = 0,
                  near_far: bool = False, followed: float = 0.5) -> dict:
     """``track_colour_slope`` as the evaluate step writes it, fitted on synthetic tracks whose
     input colour falls as exp(-BETA range) and whose restoration keeps ``1 - removed`` of that."""
@@ -554,52 +401,19 @@ def _track_slope(removed: float, held_out: bool = True, seed: int = 0,
                                                             "observations (need 20)"})}
 
 
-def _slope_records() -> list[DatasetRecord]:
-    reef, lagoon, plain, untrained = (_summary(name, 25.0) for name in
+def slope_records() -> list[DatasetRecord]:
+    reef, lagoon, plain, untrained = (evaluation_summary(name, 25.0) for name in
                                       ("reef", "lagoon", "plain", "untrained"))
-    reef.track_colour_slope = _track_slope(0.8, near_far=True)
-    lagoon.track_colour_slope = _track_slope(0.4, held_out=False, seed=1)
+    reef.track_colour_slope = track_slope_record(0.8, near_far=True)
+    lagoon.track_colour_slope = track_slope_record(0.4, held_out=False, seed=1)
     untrained.track_colour_slope = {"source": "none", "reason": "/d/model.pt: no trained model"}
     return [DatasetRecord("reef", summary=reef), DatasetRecord("lagoon", summary=lagoon),
             DatasetRecord("plain", summary=plain), DatasetRecord("untrained", summary=untrained),
             DatasetRecord("broken", status="failed", failed_step="train", error="boom")]
 
 
-def test_followed_share_pools_the_channels_whose_input_slope_stands_out():
-    from seathru.eval.report import followed_share
-
-    assert followed_share([(0.2, 0.01), (0.0, 0.01)], [(0.05, 0.01), (0.3, 0.01)]) == \
-        pytest.approx(0.25)
-    # a falling input followed by a falling render counts as followed; a rising one against it
-    assert followed_share([(-0.2, 0.01), (0.1, 0.01)], [(-0.2, 0.01), (-0.1, 0.01)]) == \
-        pytest.approx((0.2 - 0.1) / 0.3)
-    assert followed_share([(0.01, 0.01)], [(0.01, 0.01)]) is None        # within its error
-    assert followed_share([(0.2, 0.01)], [(None, None)]) is None          # not measured
-
-
-def test_html_says_a_reduction_says_little_where_the_full_render_does_not_follow_the_input():
-    from seathru.eval.report import TRACK_SLOPE_FOLLOWED_MIN, track_slope_rows
-
-    reef = _summary("reef", 25.0)
-    reef.track_colour_slope = _track_slope(0.8, followed=0.2)
-    demo = _summary("demo", 25.0)
-    demo.track_colour_slope = _track_slope(0.8, seed=2, followed=0.95)
-    records = [DatasetRecord("reef", summary=reef), DatasetRecord("demo", summary=demo)]
-    rows = {row["dataset"]: row["parts"][0] for row in track_slope_rows(records)}
-    assert rows["reef"]["followed"] == pytest.approx(0.2, abs=0.02)
-    assert rows["demo"]["followed"] == pytest.approx(0.95, abs=0.02)
-    assert rows["reef"]["followed"] < TRACK_SLOPE_FOLLOWED_MIN < rows["demo"]["followed"]
-    page = render_html(summary_table(records), records, {}, {}, "now")
-    section = page.split("<h2>Colour along COLMAP tracks</h2>")[1].split("<h2>")[0]
-    reef_part = section[section.index(">reef<"):section.index(">demo<")]
-    demo_part = section[section.index(">demo<"):]
-    note = "of the input's slope, so the share removed says little"
-    assert reef_part.count(note) == 1 and "follows only 20%" in reef_part
-    assert note not in demo_part
-
-
 def test_track_slope_reduction_column_only_where_fitted():
-    records = _slope_records()
+    records = slope_records()
     table = summary_table(records)
     columns = list(table.columns)
     assert columns.index("track_slope_reduction") + 1 \
@@ -613,9 +427,9 @@ def test_track_slope_reduction_column_only_where_fitted():
     assert photos[["reef", "lagoon"]].to_numpy() == pytest.approx([0.5, 0.5], abs=0.02)
     assert photos[["plain", "untrained", "broken"]].isna().all()
     # a fit without an input slope (null in summary.json) is a missing value, not an error
-    flat = _summary("flat", 20.0)
-    flat.track_colour_slope = {**_track_slope(0.5), "all_views": {
-        **_track_slope(0.5)["all_views"], "reduction_overall": None}}
+    flat = evaluation_summary("flat", 20.0)
+    flat.track_colour_slope = {**track_slope_record(0.5), "all_views": {
+        **track_slope_record(0.5)["all_views"], "reduction_overall": None}}
     both = summary_table([records[0], DatasetRecord("flat", summary=flat)])
     assert np.isnan(both.set_index("dataset").loc["flat", "track_slope_reduction"])
     bare = summary_table([r for r in records if r.dataset in ("plain", "untrained", "broken")])
@@ -623,9 +437,9 @@ def test_track_slope_reduction_column_only_where_fitted():
 
 
 def test_html_shows_slopes_per_channel_against_the_goal_and_why_a_part_is_missing():
-    from seathru.eval.report import TRACK_SLOPE_GOAL
+    from seathru.eval.report_tracks import TRACK_SLOPE_GOAL
 
-    records = _slope_records()
+    records = slope_records()
     page = render_html(summary_table(records), records, {}, {}, "now")
     summary = page.split('<table class="summary">')[1].split("</table>")[0]
     assert "<th>track_slope_reduction</th>" in summary
@@ -675,76 +489,3 @@ def test_html_shows_slopes_per_channel_against_the_goal_and_why_a_part_is_missin
     assert "COLMAP tracks" not in plain and "track_slope" not in plain
 
 
-def test_brighter_near_open_water_warns_with_the_slope_beside_it():
-    """d3_reef's reading (coefficients -0.33, -0.32, -0.28 at 23-32 standard errors) warns, with
-    the darkening per doubling of distance (2 ** c) and the slopes with and without the term;
-    the demo's (within 0.005 of 0), a loose fit or a single channel does not."""
-    summary = _summary("reef", 17.0)
-    summary.track_colour_slope = _track_slope(0.5)
-    part = summary.track_colour_slope["all_views"]
-    part["near_open_water"] = {"slope": [-0.109, 0.006, 0.083], "stderr": [0.009] * 3,
-                               "coefficient": [-0.328, -0.317, -0.276],
-                               "coefficient_stderr": [0.012, 0.010, 0.009], "observations": 19156}
-    [warning] = evaluation_warnings(summary)
-    assert warning["step"] == "evaluate" and warning["code"] == "brighter_near_open_water"
-    darker = [f"{100 * (1 - 2 ** c):.0f}%" for c in (-0.328, -0.317, -0.276)]
-    assert darker == ["20%", "20%", "17%"] and ", ".join(darker) in warning["message"]
-    assert "-0.109, 0.006, 0.083" in warning["message"] and "removed" not in warning["message"]
-    part["near_open_water"]["restored"] = {"reduction_overall": 0.948}
-    part["near_open_water"]["photographs"] = {"reduction_overall": 0.881}
-    [warning] = evaluation_warnings(summary)
-    assert ("of that change the restored render 95% and the restored photographs 88% removed"
-            in warning["message"])
-    assert warning["details"]["removed_beside"] == {"restored": 0.948, "photographs": 0.881}
-    assert "restored images keep it" in warning["message"]
-    summary.medium_selection = {"glare_correction": {"coefficient": -0.296, "near": 0.07,
-                                                     "reference": 0.22, "far": 0.48}}
-    [warning] = evaluation_warnings(summary)
-    assert "divided by a brightening of -0.30 log colour" in warning["message"]
-    assert "keep it" not in warning["message"]
-    assert warning["details"]["glare_correction"]["coefficient"] == -0.296
-    for coefficient, stderr in (([-0.005, 0.001, -0.001], [0.003] * 3),      # the demo
-                                ([-0.3, -0.3, -0.3], [0.2] * 3),              # not measured
-                                ([-0.3, 0.0, 0.0], [0.01] * 3)):              # one channel
-        part["near_open_water"].update(coefficient=coefficient, coefficient_stderr=stderr)
-        assert evaluation_warnings(summary) == []
-    del part["near_open_water"]
-    assert evaluation_warnings(summary) == [] and evaluation_warnings(None) == []
-
-
-def test_a_colour_cast_that_changes_between_frames_warns_with_its_spread():
-    summary = _summary("phone", 25.0)
-    summary.track_colour_slope = _track_slope(0.5)
-    summary.track_colour_slope["frame_colour"] = {
-        "spread": [0.150, 0.046], "noise": [0.001, 0.001], "varies": True, "threshold": 0.08,
-        "offsets": {"dive_0001": [0.02, -0.01], "dive_0009": [-0.31, 0.08]}}
-    [warning] = evaluation_warnings(summary)
-    assert warning["code"] == "colour_varies_between_frames"
-    assert "vary by 15%, 5% between frames" in warning["message"]
-    assert "(root mean square; farthest from the median frame: dive_0009, -31%, +8%)" in \
-        warning["message"] and "Shoot RAW" in warning["message"]
-    assert "No water model follows it" in warning["message"]
-    summary.medium_selection = {"frame_colour_correction": {"gains": {}, "spread": [0.13, 0.04]}}
-    [warning] = evaluation_warnings(summary)
-    assert "trained on the photographs brought to the median frame's cast" in warning["message"]
-    assert warning["details"]["corrected"] is True
-    summary.track_colour_slope["frame_colour"].update(spread=[0.038, 0.038], varies=False)
-    assert evaluation_warnings(summary) == []                 # d3_reef's reading
-
-
-def test_a_held_out_view_no_training_photograph_sees_warns_naming_it():
-    metrics = pd.DataFrame({"view": ["dive_0000", "dive_0008", "dive_0016"],
-                            "unseen_surface_share": [0.158, 0.025, float("nan")]})
-    [warning] = evaluation_warnings(None, metrics)
-    assert warning["code"] == "held_out_view_unseen"
-    assert "held-out view dive_0000 (16% of its surface) shows surfaces" in warning["message"]
-    assert "dive_0008" not in warning["message"]
-    assert warning["details"]["unseen_surface_share"] == {"dive_0000": 0.158}
-    metrics["unseen_surface_share"] = [0.09, 0.0, 0.02]      # every view seen
-    assert evaluation_warnings(None, metrics) == []
-    metrics["unseen_surface_share"] = [0.387, 0.107, 0.132]  # d3_reef: its first view only
-    [warning] = evaluation_warnings(None, metrics)
-    assert list(warning["details"]["unseen_surface_share"]) == ["dive_0000"]
-    metrics["unseen_surface_share"] = [0.3, 0.25, 0.35]      # all alike: nothing stands out
-    assert evaluation_warnings(None, metrics) == []
-    assert evaluation_warnings(None, metrics.drop(columns="unseen_surface_share")) == []

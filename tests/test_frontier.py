@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from seathru.cli import main
 from seathru.errors import PipelineError
 from seathru.eval import frontier
-from seathru.eval.report import DatasetRecord
+from seathru.eval.report_records import DatasetRecord
 from seathru.eval.summary import EvaluationSummary, RenderSpeed, TrainingSummary
 from seathru.eval.truth import compare_water, view_truth_metrics
 from seathru.io.cameras import read_cameras

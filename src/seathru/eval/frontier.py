@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from seathru.eval import metrics
-from seathru.eval.report import DatasetRecord, capacity_level, training_passes
+from seathru.eval.report_records import DatasetRecord, capacity_level, training_passes
 from seathru.eval.truth import WATER_KEYS, compare_water
 
 CHANNELS = "rgb"
@@ -200,7 +200,7 @@ def final_point(record: DatasetRecord) -> dict[str, float | None]:
 
 def frontier_summary(records: Iterable[DatasetRecord]) -> pd.DataFrame:
     """One row per run (:data:`SUMMARY_COLUMNS`): its capacity level and passes over its
-    training pixels (``seathru.eval.report.capacity_level``, ``training_passes``; empty where
+    training pixels (``seathru.eval.report_records.capacity_level``, ``training_passes``; empty where
     not recorded), the final evaluation's held-out PSNR and its training time, the last
     snapshot's PSNR and the time the run needed to get within :data:`WITHIN_DB` dB of it
     (:func:`time_to_within`, also as a share of the training time), restored-vs-clean where the

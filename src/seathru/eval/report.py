@@ -1,50 +1,38 @@
-"""The cross-dataset report: one row per dataset of the sheet, why failed datasets failed, what
-needs a look in the others, and the self-contained HTML page (``templates/report.html.j2``).
-Pure, no file I/O: the report step reads the files into :class:`DatasetRecord` and
-:class:`StepLog` and writes what these return.
+"""The cross-dataset report: the summary table (one row per dataset of the sheet) and the
+self-contained HTML page (``templates/report.html.j2``). Pure, no file I/O: the report step
+reads each dataset's files into a ``seathru.eval.report_records.DatasetRecord`` and writes what
+these return.
 
-"Needs a look": the warnings the steps wrote (``warnings.json``, ``seathru.io.warnings``), and
-two the report derives from the train step's outputs (:func:`training_warnings`): the water
-model turned off by ``medium.mode=auto``, and training that ended with its held-out PSNR still
-rising fast (far from convergence).
+The parts live beside this module: what a dataset's files say and why a dataset failed
+(``report_records``), the warnings the report derives itself, the "needs a look" column
+(``report_warnings``), and the colour along COLMAP tracks (``report_tracks``).
 
 Where the evaluate step ran a community protocol (``evaluate.protocol=nerfbaselines``), its
 means sit beside ours as ``<protocol>_psnr`` / ``_ssim`` / ``_lpips`` (:func:`protocol_cells`);
 where it measured a colour chart, the mean CIEDE2000 and grey angular error of the photo, the
 ingest image and the restored render are the ``chart_*`` columns (:func:`chart_cells`) and the
-page's "Colour charts" section (:func:`chart_rows`). Where it fitted the colour's slope
-against range along COLMAP tracks (``track_colour_slope``, ``seathru.eval.track_slope``), the
-share of the input's slope the restoration removed over all views is ``track_slope_reduction``
-(:func:`track_slope_cells`) and the page's "Colour along COLMAP tracks" section gives the
-slopes per channel against the :data:`TRACK_SLOPE_GOAL` (:func:`track_slope_rows`). Datasets
-without them add nothing.
-
-What the train step chose, from its ``selection.json`` and ``model.pt``: the capacity level
-(``capacity``: ``auto → fast`` when ``train.preset=auto`` chose it, ``quality`` for a named
-preset: :func:`capacity_level`), the passes over the training pixels the run made (``passes``:
-:func:`training_passes`) and, in the page's "Settings chosen" section, why the capacity and the
-medium model were chosen (:func:`settings_notes`).
+page's "Colour charts" section (:func:`chart_rows`). Datasets without them add nothing. The
+page's "Settings chosen" section says why the capacity and the medium model were chosen
+(:func:`settings_notes`).
 """
 
 from __future__ import annotations
 
 import base64
-import json
-import re
 from collections.abc import Mapping, Sequence
-from typing import Any
-from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
+from seathru.eval.report_records import (DatasetRecord, capacity_level, capacity_record,
+                                         finite_number, medium_name, run_selection,
+                                         training_passes)
+from seathru.eval.report_tracks import (TRACK_SLOPE_FOLLOWED_MIN, TRACK_SLOPE_GOAL,
+                                        track_slope_cells, track_slope_rows)
+from seathru.eval.report_warnings import needs_a_look
 from seathru.eval.summary import EvaluationSummary
 from seathru.eval.truth import WATER_KEYS
-from seathru.radiometry.glare import brighter_near_open_water
 
-ERROR_LINE = re.compile(r"seathru (?P<step>[\w-]+): error: (?P<message>.*)")
-STOPPED_BY_LINE = re.compile(r"\(stopped by (?P<cause>\w+)[;)]")
-NOT_RUN = "no results and no logs (not run yet?)"
 #: The colour chart's images (keys of the evaluate step's ``colour_chart``) and their labels.
 CHART_IMAGES = (("stored", "photo"), ("ingest", "ingest"), ("restored", "restored"),
                 ("restored_photo", "restored_photo"))
@@ -61,17 +49,6 @@ TABLE_COLUMNS = (
     "depth_median_abs_rel", "depth_corr", *CHART_COLUMNS, "track_slope_reduction",
     "photo_track_slope_reduction", "train_time_s", "train_steps",
     "capacity", "passes", "render_fps", "render_resolution", "medium")
-#: The share of the input's colour slope along tracks a restoration should remove on a real dive.
-TRACK_SLOPE_GOAL = 0.7
-#: Below this share of the input's slope followed by the full render, the report says the
-#: reduction says little (the model never held the range dependence it "removed").
-TRACK_SLOPE_FOLLOWED_MIN = 0.5
-#: The parts of ``track_colour_slope`` (views of the tracks' observations) and their labels.
-TRACK_SLOPE_PARTS = (("all_views", "all views"), ("held_out_views", "held-out views"),
-                     ("near_tracks", "nearest 90% of tracks"),
-                     ("far_tracks", "farthest 10% of tracks"))
-#: Parts that evaluations before them do not have: shown only where present.
-OPTIONAL_TRACK_SLOPE_PARTS = ("near_tracks", "far_tracks")
 ALWAYS_SHOWN = ("dataset", "status", "warnings", "needs_a_look", "error", "failed_step")
 #: A protocol's means shown, in this order, as ``<protocol>_<metric>`` after ``lpips``.
 PROTOCOL_METRICS = ("psnr", "ssim", "lpips", "lpips_vgg")
@@ -80,138 +57,6 @@ PROTOCOL_NOTES = {
                      "render taken back to the stored images' encoding and geometry, 8-bit, "
                      "against the stored images as they are on disk; comparable with published "
                      "NerfBaselines results, not with psnr_linear"}
-
-
-@dataclass
-class StepLog:
-    """One step log of a dataset (``LOGS/<dataset>/<step>.log``)."""
-
-    step: str            # the file name's stem
-    mtime: float         # modification time, seconds
-    lines: list[str]
-
-
-@dataclass
-class DatasetRecord:
-    """Everything the report shows about one dataset of the sheet."""
-
-    dataset: str
-    source: str = ""
-    options: str = ""
-    status: str = "ok"          # "ok" (evaluated), "failed" or "incomplete" (stopped early)
-    failed_step: str | None = None
-    error: str | None = None
-    summary: EvaluationSummary | None = None
-    metrics: pd.DataFrame | None = None
-    train_log: pd.DataFrame | None = None
-    water: dict[str, Any] | None = None   # water.json as written (per source unit)
-    warnings: list[dict] = field(default_factory=list)  # {step, code, message, details}
-    base: str = ""                      # the sheet's dataset a sweep run is on ("" = itself)
-    variant: str = ""                   # its sweep variant ("" for the sheet's own row)
-    frontier: pd.DataFrame | None = None   # evaluate/frontier.csv (seathru.io.frontier)
-    selection: dict | None = None       # the train step's selection.json (medium, capacity)
-    # model.pt's training record (steps, elapsed_s, stopped_by, ...) with its config's
-    # batch_rays and preset (seathru.io.model.read_training_record)
-    training_run: dict | None = None
-    poses: dict | None = None           # the poses step's report.json (seathru.io.pose_report)
-
-
-def diagnose_failure(logs: Sequence[StepLog], step_order: Sequence[str]) -> tuple[str | None, str]:
-    """(failing step, message) of a dataset without results, from its step logs.
-
-    The last ``seathru <step>: error: <message>`` line of the most recently written log that has
-    one (ties broken by pipeline order); without any, the last line of the newest log.
-
-    Example::
-
-        diagnose_failure([StepLog("ingest", 5.0, ["seathru ingest: error: bad file"])], STEPS)
-        # -> ("ingest", "bad file")
-    """
-    if not logs:
-        return None, NOT_RUN
-
-    def newest(candidates):
-        return max(candidates, key=lambda c: (c[0].mtime, list(step_order).index(c[0].step)
-                                              if c[0].step in step_order else -1))
-
-    with_errors = [(log, match) for log in logs
-                   for match in [next((m for m in map(ERROR_LINE.search, reversed(log.lines))
-                                       if m), None)] if match is not None]
-    if with_errors:
-        log, match = newest(with_errors)
-        return (match["step"] if match["step"] in step_order else log.step,
-                match["message"].strip())
-    log, _ = newest([(log, None) for log in logs])
-    last_line = next((line.strip() for line in reversed(log.lines) if line.strip()), "")
-    return log.step, f"no 'error:' line; last line of {log.step}.log: {last_line or '(empty)'}"
-
-
-def medium_name(selection) -> str | None:
-    """The medium model the train step chose, from its ``selection.json`` content."""
-    if not isinstance(selection, dict):
-        return None
-    for key in ("final_mode", "chosen", "mode", "medium", "selected"):
-        if key in selection:
-            return str(selection[key])
-    return json.dumps(selection)[:80]
-
-
-def run_selection(record: DatasetRecord) -> dict | None:
-    """The train step's ``selection.json`` of a run: the record's, else the copy in its
-    evaluation summary."""
-    if isinstance(record.selection, dict):
-        return record.selection
-    selection = record.summary.medium_selection if record.summary is not None else None
-    return selection if isinstance(selection, dict) else None
-
-
-def _capacity_record(record: DatasetRecord) -> dict | None:
-    capacity = (run_selection(record) or {}).get("capacity")
-    return capacity if isinstance(capacity, dict) and capacity.get("chosen") else None
-
-
-def capacity_level(record: DatasetRecord) -> str | None:
-    """The capacity level a run trained at: ``auto → <level>`` when ``train.preset=auto``
-    chose it, the preset's name when one was named; from ``selection.json``'s ``capacity``,
-    else the preset in ``model.pt``'s config (older runs); None without either.
-
-    Example::
-
-        capacity_level(DatasetRecord("d", selection={"capacity": {"requested": "auto",
-                                                                  "chosen": "fast"}}))
-        # -> "auto → fast"
-    """
-    capacity = _capacity_record(record)
-    if capacity is None:
-        preset = (record.training_run or {}).get("preset")
-        return str(preset) if preset else None
-    requested, chosen = capacity.get("requested"), str(capacity["chosen"])
-    return chosen if requested in (None, "", chosen) else f"{requested} \u2192 {chosen}"
-
-
-def _positive(value) -> float | None:
-    number = value if isinstance(value, (int, float)) and not isinstance(value, bool) else None
-    return float(number) if number is not None and np.isfinite(number) and number > 0 else None
-
-
-def training_passes(record: DatasetRecord) -> float | None:
-    """Passes over the training pixels the run made: ``steps x batch_rays / train_pixels``,
-    steps and batch from ``model.pt``, the pixels from the capacity record's ``scene``; None
-    when one of them is unknown (a named preset records no scene, older runs no capacity).
-
-    Example::
-
-        training_passes(DatasetRecord("d", selection={"capacity": {"chosen": "fast",
-                        "scene": {"train_pixels": 20000}}},
-                        training_run={"steps": 100, "batch_rays": 1000}))   # -> 5.0
-    """
-    scene = (_capacity_record(record) or {}).get("scene")
-    pixels = _positive(scene.get("train_pixels")) if isinstance(scene, dict) else None
-    run = record.training_run or {}
-    steps, batch = _positive(run.get("steps")), _positive(run.get("batch_rays"))
-    if pixels is None or steps is None or batch is None:
-        return None
-    return steps * batch / pixels
 
 
 def settings_notes(records: Sequence[DatasetRecord]) -> list[dict]:
@@ -223,7 +68,7 @@ def settings_notes(records: Sequence[DatasetRecord]) -> list[dict]:
     ``far_factor_reason``; None where not recorded."""
     notes = []
     for record in records:
-        selection, capacity = run_selection(record), _capacity_record(record)
+        selection, capacity = run_selection(record), capacity_record(record)
         level = capacity_level(record)
         if selection is None and level is None:
             continue
@@ -251,147 +96,6 @@ def _choice_note(selection: dict | None, key: str, name: str) -> dict:
     return {name: f"{choice['chosen']:g}" if isinstance(choice["chosen"], (int, float))
             and not isinstance(choice["chosen"], bool) else str(choice["chosen"]),
             f"{name}_reason": choice.get("reason")}
-
-
-def stopped_by(lines: Sequence[str]) -> str | None:
-    """What ended training (``steps`` or ``time``), from the train step's log lines, or None."""
-    return next((m["cause"] for m in map(STOPPED_BY_LINE.search, reversed(lines)) if m), None)
-
-
-def psnr_rise(train_log: pd.DataFrame | None, window: float = 0.2) -> dict | None:
-    """How much the PSNR rose over the last ``window`` share of training time.
-
-    Uses the held-out ``test_psnr`` when it has values before the window and at the end, else
-    ``train_psnr``; the value at the window's start is interpolated linearly in time.
-
-    Returns:
-        ``{"column", "rise_db", "from_s", "to_s", "final_psnr"}``, or None without enough
-        values.
-
-    Example::
-
-        psnr_rise(pd.DataFrame({"wall_time_s": [0, 8, 10], "test_psnr": [10, 18, 20]}))
-        # -> {"column": "test_psnr", "rise_db": 2.0, "from_s": 8.0, ...}
-    """
-    if train_log is None or "wall_time_s" not in train_log:
-        return None
-    for column in ("test_psnr", "train_psnr"):
-        if column not in train_log:
-            continue
-        rows = train_log[["wall_time_s", column]].apply(pd.to_numeric, errors="coerce").dropna()
-        times, values = rows["wall_time_s"].to_numpy(float), rows[column].to_numpy(float)
-        if len(times) < 2 or times[-1] <= 0:
-            continue
-        start = (1.0 - window) * times[-1]
-        if times[0] > start:
-            continue
-        begin = float(np.interp(start, times, values))
-        return {"column": column, "rise_db": float(values[-1] - begin), "from_s": float(start),
-                "to_s": float(times[-1]), "final_psnr": float(values[-1])}
-    return None
-
-
-def held_out_plateau(train_log: pd.DataFrame | None, within_db: float = 0.25,
-                     early: float = 0.1, train_rise_db: float = 2.0) -> dict | None:
-    """Whether the held-out PSNR stopped rising early while the training PSNR kept rising.
-
-    The held-out PSNR reached within ``within_db`` of its best in the first ``early`` share of
-    the training time, and the training PSNR rose more than ``train_rise_db`` after that: the
-    model went on fitting the training views without getting better at new ones, which more
-    training time does not mend (on the real d3_reef frames: held-out 17 dB from the first 7 s
-    of a 15-min run on, training 18 to 22 dB; ``benchmarks/results/reef_15min.md``).
-
-    Returns:
-        ``{"held_out_best_db", "held_out_final_db", "within_db", "reached_s", "to_s",
-        "train_rise_db"}``, or None when the log does not show it (or lacks the columns).
-
-    Example::
-
-        held_out_plateau(pd.DataFrame({"wall_time_s": [0, 5, 50, 100],
-                                       "test_psnr": [10, 17, 17.1, 17],
-                                       "train_psnr": [10, 18, 20, 22]}))
-        # -> {"reached_s": 5.0, "train_rise_db": 4.0, ...}
-    """
-    if train_log is None or not {"wall_time_s", "test_psnr", "train_psnr"} <= set(train_log):
-        return None
-    numeric = train_log[["wall_time_s", "test_psnr", "train_psnr"]].apply(pd.to_numeric,
-                                                                          errors="coerce")
-    held = numeric[["wall_time_s", "test_psnr"]].dropna()
-    fitted = numeric[["wall_time_s", "train_psnr"]].dropna()
-    if len(held) < 3 or len(fitted) < 2:
-        return None
-    times, values = held["wall_time_s"].to_numpy(float), held["test_psnr"].to_numpy(float)
-    total = float(times[-1])
-    reached = float(times[np.argmax(values >= values.max() - within_db)])
-    if total <= 0 or reached > early * total:
-        return None
-    train_times = fitted["wall_time_s"].to_numpy(float)
-    train_values = fitted["train_psnr"].to_numpy(float)
-    rise = float(train_values[-1] - np.interp(reached, train_times, train_values))
-    if rise <= train_rise_db:
-        return None
-    return {"held_out_best_db": float(values.max()), "held_out_final_db": float(values[-1]),
-            "within_db": within_db, "reached_s": reached, "to_s": total, "train_rise_db": rise}
-
-
-def _warning(code: str, message: str, **details) -> dict:
-    return {"step": "train", "code": code, "message": message, "details": details}
-
-
-def training_warnings(selection, train_log: pd.DataFrame | None, stopped: str | None = None,
-                      rising_db: float = 1.0, window: float = 0.2) -> list[dict]:
-    """Warnings the report derives from the train step's outputs (``{step, code, message,
-    details}``, as ``seathru.io.warnings``).
-
-    Args:
-        selection: the content of ``selection.json`` (the medium model chosen and why).
-        train_log: ``train_log.csv``; stopped: ``steps`` / ``time`` / None (:func:`stopped_by`).
-        rising_db, window: training is far from converged when the PSNR rose more than
-            ``rising_db`` over the last ``window`` share of its time (:func:`psnr_rise`).
-
-    Also warns when the held-out PSNR stopped rising early while the training PSNR went on
-    (:func:`held_out_plateau`).
-    """
-    found = []
-    if isinstance(selection, dict):
-        chosen = selection.get("final_mode", selection.get("chosen"))
-        if chosen == "off" and selection.get("requested") != "off":
-            reason = selection.get("reason") or "no reason recorded"
-            found.append(_warning(
-                "water_model_off", f"the water model was turned off ({reason}); the model is a "
-                f"plain NeRF and its 'restored' images keep the water's colour; if this dive has "
-                f"water, set train.medium.mode=global", requested=selection.get("requested"),
-                chosen=chosen))
-    rise = psnr_rise(train_log, window)
-    if rise is not None and rise["rise_db"] > rising_db:
-        advice = {"time": "training stopped at its time budget far from convergence: give it "
-                          "more train.max_minutes",
-                  "steps": "training reached train.steps while still improving: raise "
-                           "train.steps (and train.max_minutes)"}.get(
-            stopped, "raise train.max_minutes or train.steps")
-        which = "held-out" if rise["column"] == "test_psnr" else "training"
-        found.append(_warning(
-            "not_converged", f"the {which} PSNR still rose {rise['rise_db']:.2f} dB over the last "
-            f"{window:.0%} of training ({rise['from_s']:.3g} s to {rise['to_s']:.3g} s, "
-            f"> {rising_db:g} dB): {advice}", stopped_by=stopped, threshold_db=rising_db,
-            **rise))
-    plateau = held_out_plateau(train_log)
-    if plateau is not None:
-        found.append(_warning(
-            "held_out_plateau", f"the held-out PSNR was within {plateau['within_db']:g} dB of "
-            f"its best ({plateau['held_out_best_db']:.2f} dB) after "
-            f"{plateau['reached_s']:.3g} s of {plateau['to_s']:.3g} s while the training PSNR "
-            f"rose another "
-            f"{plateau['train_rise_db']:.1f} dB: the model fits the training views without "
-            f"getting better at new ones, and more training time will not change that (too "
-            f"few views of each surface, or camera poses that disagree); the novel views and "
-            f"the water rest on what the training views alone show", **plateau))
-    return found
-
-
-def needs_a_look(warnings: Sequence[dict]) -> str | None:
-    """The summary cell of a dataset's warnings: ``step: code`` each, ``; ``-separated."""
-    return "; ".join(f"{w['step']}: {w['code']}" for w in warnings) or None
 
 
 def protocol_cells(summary: EvaluationSummary | None) -> dict[str, float | None]:
@@ -435,249 +139,6 @@ def chart_cells(summary: EvaluationSummary | None) -> dict[str, float | None]:
         cells[f"chart_de00_{label}"] = part.get("mean_delta_e00")
         cells[f"chart_grey_deg_{label}"] = part.get("mean_grey_angular_error_deg")
     return cells
-
-
-def _finite(value) -> float | None:
-    number = value if isinstance(value, (int, float)) and not isinstance(value, bool) else None
-    return float(number) if number is not None and np.isfinite(number) else None
-
-
-def evaluation_warnings(summary: EvaluationSummary | None,
-                        metrics: pd.DataFrame | None = None) -> list[dict]:
-    """``brighter_near_open_water`` where the evaluation found the same surfaces brighter in
-    the frames that show them next to the open water (``track_colour_slope``'s
-    ``near_open_water``, ``seathru.io.tracks``): light no water model makes (veiling glare in
-    the housing's port, a camera's local tone mapping), which the restored images keep;
-    ``colour_varies_between_frames`` where the frames' colour casts differ beyond what the
-    points and their ranges explain (its ``frame_colour``: a camera's automatic white balance);
-    and ``held_out_view_unseen`` where more than :data:`UNSEEN_SHARE_WARN` of a held-out view's
-    surface, and more than twice the other held-out views' share, is in no training
-    photograph (``metrics``' ``unseen_surface_share``: a view at the end of the camera path).
-
-    Example::
-
-        evaluation_warnings(summary, metrics)   # [] or [{"step": "evaluate", "code": ...}]
-    """
-    return (_brighter_warning(summary) + _frame_colour_warning(summary)
-            + _unseen_warning(metrics))
-
-
-#: The share of a held-out view's surface no training photograph sees above which, and above
-#: twice the other held-out views' median, the report warns that its scores measure a guess.
-#: The demo's first view: 0.16 (its others 0.02, 0.03); d3_reef's first: 0.39 (0.11, 0.13).
-UNSEEN_SHARE_WARN = 0.1
-
-
-def _unseen_warning(metrics: pd.DataFrame | None) -> list[dict]:
-    if metrics is None or "unseen_surface_share" not in metrics.columns:
-        return []
-    known = {str(view): float(share) for view, share
-             in zip(metrics["view"], pd.to_numeric(metrics["unseen_surface_share"],
-                                                    errors="coerce")) if np.isfinite(share)}
-
-    def others(view: str) -> float:
-        rest = [share for name, share in known.items() if name != view]
-        return float(np.median(rest)) if rest else 0.0
-
-    shares = {view: share for view, share in known.items()
-              if share > UNSEEN_SHARE_WARN and share > 2.0 * others(view)}
-    if not shares:
-        return []
-    listed = ", ".join(f"{view} ({100 * share:.0f}% of its surface)"
-                       for view, share in shares.items())
-    which = "held-out view" if len(shares) == 1 else "held-out views"
-    message = (f"{which} {listed} {'shows' if len(shares) == 1 else 'show'} surfaces that no "
-               f"training photograph sees (by the model's own depth), far more than the other "
-               f"held-out views. Scores and the restored view there measure the model's guess, "
-               f"not the reconstruction: the other views' figures are the fairer ones. A "
-               f"held-out view at either end of the camera path (every 8th image, the first "
-               f"included) often looks where no other photograph did.")
-    return [{"step": "evaluate", "code": "held_out_view_unseen", "message": message,
-             "details": {"unseen_surface_share": shares, "all_views": known,
-                         "threshold": UNSEEN_SHARE_WARN}}]
-
-
-def _frame_colour_warning(summary: EvaluationSummary | None) -> list[dict]:
-    slope = summary.track_colour_slope if summary is not None else None
-    cast = slope.get("frame_colour") if isinstance(slope, dict) else None
-    if not isinstance(cast, dict) or not cast.get("varies"):
-        return []
-    spread = ", ".join(f"{100 * v:.0f}%" for v in cast.get("spread") or [])
-    offsets = cast.get("offsets") or {}
-    worst = max(offsets, key=lambda name: max(abs(v) for v in offsets[name]), default=None)
-    example = (f"; farthest from the median frame: {worst}, "
-               f"{', '.join(f'{100 * v:+.0f}%' for v in offsets[worst])}" if worst else "")
-    corrected = isinstance((summary.medium_selection or {}).get("frame_colour_correction"),
-                           dict)
-    trained = ("The model was trained on the photographs brought to the median frame's cast "
-               "(train.frame_colour auto), which undoes most of it but not all (the simulated "
-               "survey white-balanced frame by frame, two runs: red attenuation within 1%, "
-               "green and blue 11-12% and 18-20% low with intervals that miss the truth, "
-               "against up to 33% off without)"
-               if corrected else
-               "No water model follows it, so the fitted water is off, possibly more than its "
-               "intervals say (the simulated survey white-balanced frame by frame: up to 33% "
-               "off, three intervals missing the truth)")
-    message = (f"the photographs' colour cast changes from frame to frame beyond what the "
-               f"points and their ranges explain: red and blue against green vary by {spread} "
-               f"between frames (root mean square{example}), as a camera's automatic "
-               f"white balance makes them. {trained}. Shoot RAW, or set the white balance by "
-               f"hand for the dive.")
-    return [{"step": "evaluate", "code": "colour_varies_between_frames", "message": message,
-             "details": {"spread": cast.get("spread"), "noise": cast.get("noise"),
-                         "threshold": cast.get("threshold"), "corrected": corrected}}]
-
-
-def _brighter_warning(summary: EvaluationSummary | None) -> list[dict]:
-    part = _slope_part(summary.track_colour_slope if summary is not None else None,
-                       "all_views")
-    beside = part.get("near_open_water") if part is not None else None
-    if not isinstance(beside, dict):
-        return []
-    coefficients = [_finite(v) for v in beside.get("coefficient") or []]
-    errors = [_finite(v) for v in beside.get("coefficient_stderr") or []]
-    if not brighter_near_open_water(coefficients, errors):
-        return []
-    darker = ", ".join(f"{100 * (1 - 2 ** c):.0f}%" if c is not None else "?"
-                       for c in coefficients)
-    beside_slope = ", ".join(f"{v:.3f}" for v in beside.get("slope") or [])
-    alone = ", ".join(f"{v:.3f}" for v in (part.get("input") or {}).get("slope") or [])
-    removed = [f"{label} {100 * share:.0f}%" for label, key in
-               (("the restored render", "restored"), ("the restored photographs", "photographs"))
-               if (share := _finite((beside.get(key) or {}).get("reduction_overall")))
-               is not None]
-    of_that = f"; of that change {' and '.join(removed)} removed" if removed else ""
-    applied = (summary.medium_selection or {}).get("glare_correction")
-    kept = (f"the model was trained on the photographs divided by a brightening of "
-            f"{applied.get('coefficient', float('nan')):+.2f} log colour per unit of log "
-            f"distance (train.glare auto), and the restored images are measured against the "
-            f"photographs as they are, so the track slope (track_slope_reduction) still holds "
-            f"what the correction did not take out" if isinstance(applied, dict) else
-            "the restored images keep it, and the track slope (track_slope_reduction) "
-            "measures it as well as the water")
-    message = (f"the photographs are brighter next to the open water in the frame: the same "
-               f"surface is {darker} (R, G, B) darker each time its distance to the open water "
-               f"in the image doubles. With that taken into account the colour changes with "
-               f"range by {beside_slope} per unit along the COLMAP tracks, against {alone} "
-               f"without{of_that}. Veiling glare in the housing's port or a camera's local "
-               f"tone mapping do this, the water does not: {kept}.")
-    return [{"step": "evaluate", "code": "brighter_near_open_water", "message": message,
-             "details": {"coefficient": coefficients, "coefficient_stderr": errors,
-                         "slope_beside": beside.get("slope"),
-                         "removed_beside": {key: (beside.get(key) or {}).get("reduction_overall")
-                                            for key in ("restored", "photographs")},
-                         "glare_correction": applied}}]
-
-
-def _slope_part(slope: dict | None, key: str) -> dict | None:
-    """A measured part of ``track_colour_slope`` (with its ``reduction``), else None."""
-    part = slope.get(key) if isinstance(slope, dict) else None
-    return part if isinstance(part, dict) and "reduction" in part else None
-
-
-def track_slope_cells(summary: EvaluationSummary | None) -> dict[str, float | None]:
-    """``track_slope_reduction``: the share of the input's colour slope along COLMAP tracks
-    the restored render removed over all views (``reduction_overall``; 1 removes all of it,
-    below 0 made it steeper), and ``photo_track_slope_reduction``, the same for the restored
-    photographs where the evaluation measured them; {} where it fitted none.
-
-    Example::
-
-        track_slope_cells(summary)
-        # {"track_slope_reduction": 0.66, "photo_track_slope_reduction": 0.87}
-    """
-    part = _slope_part(summary.track_colour_slope if summary is not None else None, "all_views")
-    if part is None:
-        return {}
-    cells = {"track_slope_reduction": _finite(part.get("reduction_overall"))}
-    photographs = part.get("photographs")
-    if isinstance(photographs, dict) and "reduction_overall" in photographs:
-        cells["photo_track_slope_reduction"] = _finite(photographs.get("reduction_overall"))
-    return cells
-
-
-def _slope_fit(record) -> list[tuple[float | None, float | None]]:
-    """(slope, stderr) per channel of one slope record (``seathru.eval.track_slope``)."""
-    record = record if isinstance(record, dict) else {}
-    slopes, errors = list(record.get("slope") or []), list(record.get("stderr") or [])
-    return [(_finite(s), _finite(errors[i]) if i < len(errors) else None)
-            for i, s in enumerate(slopes)]
-
-
-def track_slope_rows(records: Sequence[DatasetRecord]) -> list[dict]:
-    """One entry per dataset whose evaluation has a ``track_colour_slope`` (the page's
-    "Colour along COLMAP tracks"): ``dataset``, ``range_units``, ``reason`` (why nothing was
-    fitted, else None) and ``parts``, per :data:`TRACK_SLOPE_PARTS` (by label): ``label``,
-    ``reason`` (why that part is missing, else None), ``tracks``, ``observations`` (of the
-    input's fit), ``channels`` (``channel``, ``input``, ``restored`` and ``rendered`` (the full
-    render; (None, None) in evaluations from before it) as (slope, stderr), ``reduction``),
-    ``overall``, ``meets_goal`` (``overall >= TRACK_SLOPE_GOAL``) and ``followed``
-    (:func:`followed_share`; None where not measured)."""
-    rows = []
-    for record in records:
-        slope = record.summary.track_colour_slope if record.summary is not None else None
-        if not isinstance(slope, dict):
-            continue
-        parts = []
-        for key, label in TRACK_SLOPE_PARTS if slope.get("source") != "none" else ():
-            if key in OPTIONAL_TRACK_SLOPE_PARTS and key not in slope:
-                continue
-            part, raw = _slope_part(slope, key), slope.get(key)
-            if part is None:
-                reason = raw.get("reason") if isinstance(raw, dict) else None
-                parts.append({"label": label, "reason": str(reason or "not measured")})
-                continue
-            inputs, restored = _slope_fit(part.get("input")), _slope_fit(part.get("restored"))
-            rendered = _slope_fit(part.get("rendered"))
-            photographs = part.get("photographs") or {}
-            photo = _slope_fit(photographs.get("restored"))
-            photo_reduction = list(photographs.get("reduction") or [])
-            reduction = list(part.get("reduction") or [])
-            overall = _finite(part.get("reduction_overall"))
-            parts.append({
-                "label": label, "reason": None,
-                "tracks": (part.get("input") or {}).get("tracks"),
-                "observations": (part.get("input") or {}).get("observations"),
-                "channels": [{"channel": name, "input": inputs[i],
-                              "restored": restored[i] if i < len(restored) else (None, None),
-                              "rendered": rendered[i] if i < len(rendered) else (None, None),
-                              "photo": photo[i] if i < len(photo) else (None, None),
-                              "reduction": _finite(reduction[i]) if i < len(reduction)
-                              else None,
-                              "photo_reduction": _finite(photo_reduction[i])
-                              if i < len(photo_reduction) else None}
-                             for i, name in enumerate("RGB"[:len(inputs)])],
-                "overall": overall,
-                "photo_overall": _finite(photographs.get("reduction_overall")),
-                "meets_goal": overall is not None and overall >= TRACK_SLOPE_GOAL,
-                "followed": followed_share(inputs, rendered)})
-        rows.append({"dataset": record.dataset, "range_units": slope.get("range_units"),
-                     "reason": (str(slope.get("reason") or "not measured")
-                                if slope.get("source") == "none" else None),
-                     "parts": parts})
-    return rows
-
-
-def followed_share(inputs: Sequence[tuple], rendered: Sequence[tuple]) -> float | None:
-    """How much of the input's slope the full render follows, over the channels whose input
-    slope is at least twice its standard error: ``sum_c rendered_c sign(input_c) /
-    sum_c |input_c|`` (1: all of it, 0: none). None without the full render's slopes or
-    without a channel whose input slope stands out of its error.
-
-    Args:
-        inputs, rendered: per channel ``(slope, stderr)`` (``_slope_fit``).
-
-    Example::
-
-        followed_share([(0.2, 0.01), (0.0, 0.01)], [(0.05, 0.01), (0.3, 0.01)])   # 0.25
-    """
-    moved, total = 0.0, 0.0
-    for (slope, error), (followed, _) in zip(inputs, rendered):
-        if slope is None or followed is None or error is None or abs(slope) < 2 * error:
-            continue
-        moved += followed * np.sign(slope)
-        total += abs(slope)
-    return moved / total if total > 0 else None
 
 
 def camera_cells(poses: dict | None) -> dict[str, str | None]:
@@ -827,7 +288,7 @@ def format_cell(value) -> str:
 
 def format_share(value) -> str:
     """A share as a whole percentage (``0.512`` -> ``51%``), missing values as a dash."""
-    number = _finite(value)
+    number = finite_number(value)
     return "—" if number is None else f"{100 * number:.0f}%"
 
 

@@ -25,8 +25,8 @@ import pandas as pd
 
 from seathru.eval.colour_chart import CHARTS, lab_to_linear_srgb
 from seathru.eval.frontier import final_point, pareto_front, snapshot_curve
-from seathru.eval.report import (CHART_IMAGES, DatasetRecord, capacity_level, water_intervals,
-                                 water_values)
+from seathru.eval.report import CHART_IMAGES, water_intervals, water_values
+from seathru.eval.report_records import DatasetRecord, capacity_level
 from seathru.eval.truth import WATER_KEYS
 from seathru.radiometry.colour import linear_to_srgb
 
@@ -188,7 +188,7 @@ def _log_if_wide(axes, values) -> None:
 def plot_frontier(dataset: str, runs: Sequence[DatasetRecord]):
     """One dataset's runs on the same axes, or None when none has a snapshot or a final point.
     Each run is labelled ``<run> [<capacity level>]`` where its level is known
-    (``seathru.eval.report.capacity_level``: ``auto → fast``, ``quality``).
+    (``seathru.eval.report_records.capacity_level``: ``auto → fast``, ``quality``).
 
     Left: held-out PSNR on whole images (snapshots, ``frontier.csv``) against training time, per
     run, with restored-vs-clean where the truth is known (dashed); a run without snapshots shows

@@ -7,7 +7,7 @@ capacity level chosen, and why; the copy in ``summary.json`` first), ``poses/rep
 preset: ``seathru.io.model.read_training_record``), each step's ``warnings.json`` and the
 render step's display images ``render/test/<view>/*.png``;
 ``LOGS/<dataset>/<step>.log`` for why a dataset without results failed. Everything lands in a
-:class:`seathru.eval.report.DatasetRecord`.
+:class:`seathru.eval.report_records.DatasetRecord`.
 """
 
 from __future__ import annotations
@@ -19,9 +19,10 @@ from pathlib import Path
 import pandas as pd
 
 from seathru.errors import PipelineError
-from seathru.eval.report import (ERROR_LINE, DatasetRecord, StepLog, diagnose_failure,
-                                 evaluation_warnings, stopped_by, training_warnings)
 from seathru.eval.report_plots import STRIP_COLUMNS, strip_views
+from seathru.eval.report_records import (ERROR_LINE, DatasetRecord, StepLog, diagnose_failure,
+                                         stopped_by)
+from seathru.eval.report_warnings import evaluation_warnings, training_warnings
 from seathru.io.evaluation import read_metrics, read_summary, read_train_log
 from seathru.io.frontier import FRONTIER_NAME, read_frontier
 from seathru.io.images import read_image
@@ -43,7 +44,7 @@ def collect_record(row: pd.Series, results: Path, logs: Path | None, step_order:
         results, logs: the results and logs folders.
         step_order: the pipeline's steps in order (failure diagnosis, warning order).
         rising_db, window: the ``not_converged`` warning's threshold
-            (``seathru.eval.report.training_warnings``).
+            (``seathru.eval.report_warnings.training_warnings``).
     """
     dataset = str(row["dataset"]).strip()
     base = Path(results) / dataset
@@ -104,9 +105,9 @@ def collect_record(row: pd.Series, results: Path, logs: Path | None, step_order:
 
 def stopped_after(step_logs: Sequence[StepLog], folders: Sequence[Path]) -> str | None:
     """The step a dataset without results stopped after, where that is all that happened: no
-    log has an error line (``seathru.eval.report.ERROR_LINE``) and the step of the newest log
-    wrote its results (``<folder>/<step>/``, written atomically, so present only when the step
-    finished). None otherwise: a failure, or no logs."""
+    log has an error line (``seathru.eval.report_records.ERROR_LINE``) and the step of the
+    newest log wrote its results (``<folder>/<step>/``, written atomically, so present only
+    when the step finished). None otherwise: a failure, or no logs."""
     if not step_logs or any(ERROR_LINE.search(line) for log in step_logs for line in log.lines):
         return None
     newest = max(step_logs, key=lambda log: log.mtime)

@@ -14,7 +14,7 @@ one), or the last line of its newest log when none has such a line.
 Warnings ("needs a look"): every ``RESULTS/<dataset>/<step>/warnings.json`` the steps wrote,
 and those derived from the train step's ``selection.json``, ``train_log.csv`` and log (water
 model turned off; PSNR still rising by more than ``rising_psnr_db`` over the last
-``rising_window`` of training: ``seathru.eval.report.training_warnings``).
+``rising_window`` of training: ``seathru.eval.report_warnings.training_warnings``).
 
 Writes to ``--out``:
 
