@@ -19,7 +19,7 @@ from seathru.eval import metrics
 from seathru.eval.camera_path import (capture_order, interpolate_poses, key_poses,
                                       smooth_camera_path)
 from seathru.radiometry.colour import linear_to_srgb
-from seathru.sim.scene import look_at
+from seathru.sim.camera_paths import look_at
 
 # ------------------------------------------------------------------------------------ PSNR, SSIM
 

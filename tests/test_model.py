@@ -26,7 +26,7 @@ from seathru.nerf.rendering import nerf_weights
 from seathru.nerf.sampler import (candidate_edges, lookup_nearest, merge_edges,
                                   normalised_distance, occupancy_weights, sample_pdf,
                                   stratified_edges)
-from seathru.sim.scene import look_at
+from seathru.sim.camera_paths import look_at
 from seathru.io.cameras import Frame
 
 torch.set_num_threads(1)

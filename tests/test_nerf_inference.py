@@ -15,7 +15,7 @@ from seathru.nerf.inference import (RENDER_KEYS, frame_renderer, render_frame,
                                     timed_renders)
 from seathru.nerf.model import SeaThruModel
 from seathru.nerf.rays import frame_rays, render_size
-from seathru.sim.scene import look_at
+from seathru.sim.camera_paths import look_at
 from tests.test_io_model import SCENE, SMALL
 
 FRAME = Frame(name="v", image="", width=9, height=7, fx=8.0, fy=8.0, cx=4.5, cy=3.5,

@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from seathru.cli import main
 from seathru.eval import display
-from seathru.sim.scene import look_at
+from seathru.sim.camera_paths import look_at
 from seathru.io.cameras import CameraSet, Frame, read_cameras, write_cameras
 from seathru.io.images import read_image, write_float_tiff
 from seathru.io.water import WaterReport, WaterValues, write_water

@@ -20,6 +20,8 @@ from seathru.geometry.intrinsics import focal_from_metadata
 from seathru.sim import dive as dive_mod
 from seathru.sim import reef
 from seathru.sim import scene as scene_mod
+from seathru.sim.camera_paths import look_at, orbit_path, transect_path
+from seathru.sim.shapes import Box, Ellipsoid, Seabed
 from seathru.sim import sensor as sensor_mod
 from seathru.sim.water import PRESETS, WaterParams, WaterPreset, water_image, water_params
 from seathru.io.cameras import read_cameras
@@ -44,7 +46,7 @@ def dive(tmp_path_factory):
 @functools.cache
 def _flat_scene() -> scene_mod.Scene:
     """Nothing but the plane z = 0."""
-    return scene_mod.build_dive_scene({}, seed=0, seabed=scene_mod.Seabed(amplitude=0.0),
+    return scene_mod.build_dive_scene({}, seed=0, seabed=Seabed(amplitude=0.0),
                                       objects=[])
 
 
@@ -54,7 +56,7 @@ def _flat_scene() -> scene_mod.Scene:
 @given(h=st.floats(0.3, 20.0), fov=st.floats(20.0, 120.0))
 def test_nadir_camera_over_flat_seabed_sees_h_over_cos(h, fov):
     camera = sensor_mod.Pinhole.from_fov(9, 7, fov)  # odd size: a pixel centre on the axis
-    c2w = scene_mod.look_at((0.3, -0.2, h), (0.3, -0.2, 0.0))
+    c2w = look_at((0.3, -0.2, h), (0.3, -0.2, 0.0))
     origin, dirs = sensor_mod.pixel_rays(camera, c2w, supersample=1)
     _, depth = scene_mod.render_view(_flat_scene(), origin, dirs)
     assert depth[3, 4] == pytest.approx(h, rel=1e-6)
@@ -67,7 +69,7 @@ def test_nadir_camera_over_flat_seabed_sees_h_over_cos(h, fov):
 def test_supersampled_range_is_mean_of_subsample_ranges():
     h = 2.0
     camera = sensor_mod.Pinhole.from_fov(8, 6, 70.0)
-    c2w = scene_mod.look_at((0.0, 0.0, h), (0.0, 0.0, 0.0))
+    c2w = look_at((0.0, 0.0, h), (0.0, 0.0, 0.0))
     origin, dirs = sensor_mod.pixel_rays(camera, c2w, supersample=3)
     _, depth = scene_mod.render_view(_flat_scene(), origin, dirs)
     expected = (h / -dirs[..., 2]).mean(axis=2)
@@ -76,9 +78,9 @@ def test_supersampled_range_is_mean_of_subsample_ranges():
 
 
 def test_sphere_and_box_ranges_are_exact():
-    sphere = scene_mod.Ellipsoid("s", (0.0, 0.0, 1.0), (0.5, 0.5, 0.5))
-    box = scene_mod.Box("b", (3.0, 0.0, 1.0), (0.4, 0.3, 0.2), yaw=0.0)
-    scene = scene_mod.build_dive_scene({}, seabed=scene_mod.Seabed(amplitude=0.0),
+    sphere = Ellipsoid("s", (0.0, 0.0, 1.0), (0.5, 0.5, 0.5))
+    box = Box("b", (3.0, 0.0, 1.0), (0.4, 0.3, 0.2), yaw=0.0)
+    scene = scene_mod.build_dive_scene({}, seabed=Seabed(amplitude=0.0),
                                        objects=[sphere, box])
     eye = np.array([0.0, 0.0, 4.0])
     dirs = np.array([[0.0, 0.0, -1.0], [3.0, 0.0, -2.8], [1.0, 0.0, -0.2]])
@@ -92,7 +94,7 @@ def test_sphere_and_box_ranges_are_exact():
 
 
 def test_undulating_seabed_hit_is_on_surface_and_first():
-    seabed = scene_mod.Seabed(amplitude=0.15)
+    seabed = Seabed(amplitude=0.15)
     rng = np.random.default_rng(0)
     n = 400
     origins = np.column_stack([rng.uniform(-3, 3, n), rng.uniform(-3, 3, n),
@@ -110,7 +112,7 @@ def test_undulating_seabed_hit_is_on_surface_and_first():
 
 def test_open_water_gives_infinite_range_zero_clean_and_c_med():
     camera = sensor_mod.Pinhole.from_fov(8, 6, 40.0)
-    c2w = scene_mod.look_at((0.0, 0.0, 1.0), (5.0, 0.0, 3.0))  # looking up: no surface
+    c2w = look_at((0.0, 0.0, 1.0), (5.0, 0.0, 3.0))  # looking up: no surface
     origin, dirs = sensor_mod.pixel_rays(camera, c2w, supersample=2)
     clean, depth = scene_mod.render_view(_flat_scene(), origin, dirs)
     assert np.all(np.isposinf(depth)) and np.all(clean == 0.0)
@@ -133,7 +135,7 @@ def test_reef_slope_hit_is_on_surface_and_first_and_misses_stay_above(seed, slop
                                                                      amplitude):
     """Rays in every direction (up the slope too) from points above a reef slope: a hit lies on
     the seabed with nothing before it; a miss stays above the seabed along the whole ray."""
-    seabed = scene_mod.Seabed(amplitude=amplitude, slope=math.tan(math.radians(slope_deg)),
+    seabed = Seabed(amplitude=amplitude, slope=math.tan(math.radians(slope_deg)),
                               slope_direction=0.7, crest=2.0, crest_width=0.8)
     rng = np.random.default_rng(seed)
     n = 300
@@ -158,7 +160,7 @@ def test_reef_slope_hit_is_on_surface_and_first_and_misses_stay_above(seed, slop
 
 
 def test_reef_slope_height_gradient_matches_finite_differences():
-    seabed = scene_mod.Seabed(amplitude=0.08, slope=0.5, slope_direction=1.2, crest=1.0,
+    seabed = Seabed(amplitude=0.08, slope=0.5, slope_direction=1.2, crest=1.0,
                               crest_width=0.6)
     x, y = np.meshgrid(np.linspace(-4, 4, 9), np.linspace(-4, 4, 9))
     height, gx, gy = seabed.height_and_gradient(x, y)
@@ -172,7 +174,7 @@ def test_reef_slope_height_gradient_matches_finite_differences():
     assert height.max() <= seabed.top()
     # Far below the crest the slope rises at its gradient; far above it the reef top is flat.
     u = lambda px, py: px * math.cos(1.2) + py * math.sin(1.2)  # noqa: E731
-    flat = scene_mod.Seabed(amplitude=0.0, slope=0.5, slope_direction=1.2, crest=1.0)
+    flat = Seabed(amplitude=0.0, slope=0.5, slope_direction=1.2, crest=1.0)
     assert flat.height(np.array(-20 * math.cos(1.2)), np.array(-20 * math.sin(1.2))) \
         == pytest.approx(0.5 * u(-20 * math.cos(1.2), -20 * math.sin(1.2)), abs=1e-9)
     assert flat.height(np.array(30 * math.cos(1.2)), np.array(30 * math.sin(1.2))) \
@@ -183,8 +185,8 @@ def test_reef_slope_height_gradient_matches_finite_differences():
 def test_paths_are_rotations_looking_at_the_scene(path):
     scene = scene_mod.build_dive_scene({}, seed=1)
     rng = np.random.default_rng(2)
-    poses = (scene_mod.orbit_path(scene, 8, rng) if path == "orbit"
-             else scene_mod.transect_path(scene, 8, rng))
+    poses = (orbit_path(scene, 8, rng) if path == "orbit"
+             else transect_path(scene, 8, rng))
     camera = sensor_mod.Pinhole.from_fov(32, 24, 65.0)
     for c2w in poses:
         rotation = c2w[:3, :3]
@@ -266,7 +268,7 @@ def test_water_image_matches_float64_reference(j, z, attn, bs, med):
 def test_clear_water_image_equals_clean_image_exactly():
     scene = scene_mod.build_dive_scene({}, seed=4)
     camera = sensor_mod.Pinhole.from_fov(40, 30, 65.0)
-    c2w = scene_mod.orbit_path(scene, 3, np.random.default_rng(0))[1]
+    c2w = orbit_path(scene, 3, np.random.default_rng(0))[1]
     origin, dirs = sensor_mod.pixel_rays(camera, c2w, supersample=2)
     clean, depth = scene_mod.render_view(scene, origin, dirs)
     assert np.isfinite(depth).all()

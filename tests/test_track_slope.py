@@ -19,7 +19,7 @@ from seathru.io import tracks as tracks_io
 from seathru.io.cameras import CameraSet, Frame
 from seathru.io.images import write_float_tiff
 from seathru.nerf.rays import camera_rays_np
-from seathru.sim.scene import look_at
+from seathru.sim.camera_paths import look_at
 
 
 def _tracks(rng: np.random.Generator, count: int, slope: np.ndarray, noise: float = 0.0,

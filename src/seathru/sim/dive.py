@@ -21,6 +21,8 @@ import numpy as np
 
 from seathru.sim import reef
 from seathru.sim import scene as scene_mod
+from seathru.sim.camera_paths import orbit_path, transect_path
+from seathru.sim.shapes import Seabed
 from seathru.sim import sensor as sensor_mod
 from seathru.sim.water import WaterParams, water_image
 
@@ -31,7 +33,7 @@ CameraPath = Literal["orbit", "transect", "survey"]  # the keys of CAMERA_PATHS
 # swimming over, the survey looks across a reef slope with open water above the crest.
 CAMERA_PATHS: dict[CameraPath, Callable[[scene_mod.Scene, int, np.random.Generator],
                                         np.ndarray]] = {
-    "orbit": scene_mod.orbit_path, "transect": scene_mod.transect_path,
+    "orbit": orbit_path, "transect": transect_path,
     "survey": reef.survey_path}
 
 
@@ -43,7 +45,7 @@ def build_scene(path: CameraPath, textures_srgb: Mapping[str, np.ndarray] | None
     if path == "survey":
         return reef.build_reef_scene(textures_srgb, seed, seabed_amplitude)
     return scene_mod.build_dive_scene(textures_srgb, seed=seed,
-                                      seabed=scene_mod.Seabed(amplitude=seabed_amplitude))
+                                      seabed=Seabed(amplitude=seabed_amplitude))
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,9 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from seathru.sim.scene import Box, Ellipsoid, Scene, SceneObject, Seabed, look_at, scene_textures
+from seathru.sim.camera_paths import look_at
+from seathru.sim.scene import Scene, scene_textures
+from seathru.sim.shapes import Box, Ellipsoid, SceneObject, Seabed
 
 REEF_SLOPE_DEG = 25.0
 REEF_CREST_M = 3.0     # crest line: y = 3 m, about 1.4 m above the seabed at the origin
