@@ -15,7 +15,6 @@ Writes ``benchmarks/results/profile.md``.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import platform
 import sys
 import time

@@ -234,11 +234,10 @@ def main() -> None:
     obs = track_observations(cameras, cameras.root / SPARSE_DIR)
     windows = track_windows(cameras, obs)
     windowed = windows.observed
-    median_range = pd.Series(obs.ranges).groupby(obs.track_ids).transform("median").to_numpy()
     side = 0.02 * np.array([f.width for f in cameras.frames])[obs.frames]
     fixed = _box_means(cameras, obs, side)
     box9 = _box_means(cameras, obs, np.full(len(obs.rows), 9.0))
-    lines = [f"# Colour along a real dive's COLMAP tracks (`benchmarks/bench_reef_tracks.py`)",
+    lines = ["# Colour along a real dive's COLMAP tracks (`benchmarks/bench_reef_tracks.py`)",
              "", f"Run: `{args.run}`; {len(np.unique(obs.track_ids))} tracks, "
              f"{len(obs.rows)} observations, median range {np.median(obs.ranges):.2f} "
              "(COLMAP units). Slopes: change of log colour per unit of range, within tracks "
