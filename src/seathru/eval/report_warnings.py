@@ -97,8 +97,8 @@ def held_out_plateau(train_log: pd.DataFrame | None, within_db: float = 0.25,
             "within_db": within_db, "reached_s": reached, "to_s": total, "train_rise_db": rise}
 
 
-def _warning(code: str, message: str, **details) -> dict:
-    return {"step": "train", "code": code, "message": message, "details": details}
+def _warning(code: str, message: str, step: str = "train", **details) -> dict:
+    return {"step": step, "code": code, "message": message, "details": details}
 
 
 def training_warnings(selection, train_log: pd.DataFrame | None, stopped: str | None = None,
@@ -207,9 +207,9 @@ def _unseen_warning(metrics: pd.DataFrame | None) -> list[dict]:
                f"not the reconstruction: the other views' figures are the fairer ones. A "
                f"held-out view at either end of the camera path (every 8th image, the first "
                f"included) often looks where no other photograph did.")
-    return [{"step": "evaluate", "code": "held_out_view_unseen", "message": message,
-             "details": {"unseen_surface_share": shares, "all_views": known,
-                         "threshold": UNSEEN_SHARE_WARN}}]
+    return [_warning("held_out_view_unseen", message, step="evaluate",
+                     unseen_surface_share=shares, all_views=known,
+                     threshold=UNSEEN_SHARE_WARN)]
 
 
 def _frame_colour_warning(summary: EvaluationSummary | None) -> list[dict]:
@@ -238,9 +238,9 @@ def _frame_colour_warning(summary: EvaluationSummary | None) -> list[dict]:
                f"between frames (root mean square{example}), as a camera's automatic "
                f"white balance makes them. {trained}. Shoot RAW, or set the white balance by "
                f"hand for the dive.")
-    return [{"step": "evaluate", "code": "colour_varies_between_frames", "message": message,
-             "details": {"spread": cast.get("spread"), "noise": cast.get("noise"),
-                         "threshold": cast.get("threshold"), "corrected": corrected}}]
+    return [_warning("colour_varies_between_frames", message, step="evaluate",
+                     spread=cast.get("spread"), noise=cast.get("noise"),
+                     threshold=cast.get("threshold"), corrected=corrected)]
 
 
 def _brighter_warning(summary: EvaluationSummary | None) -> list[dict]:
@@ -276,9 +276,9 @@ def _brighter_warning(summary: EvaluationSummary | None) -> list[dict]:
                f"range by {beside_slope} per unit along the COLMAP tracks, against {alone} "
                f"without{of_that}. Veiling glare in the housing's port or a camera's local "
                f"tone mapping do this, the water does not: {kept}.")
-    return [{"step": "evaluate", "code": "brighter_near_open_water", "message": message,
-             "details": {"coefficient": coefficients, "coefficient_stderr": errors,
-                         "slope_beside": beside.get("slope"),
-                         "removed_beside": {key: (beside.get(key) or {}).get("reduction_overall")
-                                            for key in ("restored", "photographs")},
-                         "glare_correction": applied}}]
+    removed_beside = {key: (beside.get(key) or {}).get("reduction_overall")
+                      for key in ("restored", "photographs")}
+    return [_warning("brighter_near_open_water", message, step="evaluate",
+                     coefficient=coefficients, coefficient_stderr=errors,
+                     slope_beside=beside.get("slope"), removed_beside=removed_beside,
+                     glare_correction=applied)]
