@@ -18,6 +18,7 @@ reads the report's ``frontier.csv`` and each run's quality snapshots
 Usage::
 
     python benchmarks/bench_frontier.py [--minutes 3] [--datasets demo,d3_reef] [--work DIR]
+        [--variants balanced,fast,quality,auto_half,fast_half]   # all but paper
     python benchmarks/bench_frontier.py --summarise-only --work DIR   # an existing run
 """
 
@@ -52,7 +53,8 @@ def variants(minutes: float) -> dict[str, str]:
             "fast_half": f"train.preset=fast; train.max_minutes={half}"}
 
 
-def write_config(work: Path, datasets: list[str], minutes: float, threads: int) -> None:
+def write_config(work: Path, datasets: list[str], minutes: float, threads: int,
+                 sweep: str = "all") -> None:
     (work / "config").mkdir(parents=True, exist_ok=True)
     config = {"datasets": "config/datasets.tsv", "results": "results", "logs": "logs",
               "simulate": {"path": "survey"}, "train": {"max_minutes": minutes},
@@ -65,9 +67,9 @@ def write_config(work: Path, datasets: list[str], minutes: float, threads: int) 
     rows = ["dataset\tsource\tpath\toptions\tsweep"]
     for name in datasets:
         if name == "demo":
-            rows.append("demo\tsimulated\t\t\tall")
+            rows.append(f"demo\tsimulated\t\t\t{sweep}")
         elif name == "d3_reef":
-            rows.append(f"d3_reef\timages\t{REEF}\t\tall")
+            rows.append(f"d3_reef\timages\t{REEF}\t\t{sweep}")
     (work / "config" / "datasets.tsv").write_text("\n".join(rows) + "\n")
 
 
@@ -151,13 +153,17 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=3.0)
     parser.add_argument("--cores", type=int, default=2)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--variants", default="all",
+                        help="comma-separated sweep variants beside the sheet row (default all: "
+                             f"{', '.join(variants(3.0))}); 'paper' alone takes over 30 min to "
+                             "evaluate on a 2-core CPU")
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--summarise-only", action="store_true")
     args = parser.parse_args()
     datasets = [d for d in args.datasets.split(",") if d != "d3_reef" or REEF.is_dir()]
     before = load_average()
     if not args.summarise_only:
-        write_config(args.work, datasets, args.minutes, args.threads)
+        write_config(args.work, datasets, args.minutes, args.threads, args.variants)
         code = run_workflow(args.work, args.cores)
         print(f"workflow exit code {code} (log: {args.work / 'workflow.log'})")
     note = (f"Device: {cpu_name()}, {args.threads} training thread(s), {args.cores} cores for "
