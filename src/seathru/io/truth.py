@@ -179,13 +179,19 @@ Units: metres; world z up, seabed near z = 0. Images are named `{NAME_PREFIX}000
 - **Open water**: a pixel where any subsample sees no surface (water to infinity, e.g.
   above the reef crest of the `survey` path) has range `+inf` (IEEE infinity in the
   float32 TIFF), clean radiance `0` (no surface to restore: leave these pixels out when
-  scoring a restoration) and water image exactly `c_med`, the limit of the formula below
-  as z -> inf. Readers should select surfaces with `isfinite(range)`.
-- **Water image**, exact per pixel and channel (computed in float64 from the stored
-  clean image and range, then stored as float32):
+  scoring a restoration). Where every subsample sees open water the water image is
+  exactly `c_med`, the limit of the formula below as z -> inf; at the open water's edge
+  it mixes `c_med` with the surface's rays. Readers should select surfaces with
+  `isfinite(range)`.
+- **Water image**: the formula acts on each subsample ray at its own range, then the
+  pixel takes the mean, as a sensor pixel integrates its footprint (computed in float64
+  from the float32 subsamples, stored as float32):
   `I = J * exp(-sigma_attn * z) + c_med * (1 - exp(-sigma_bs * z))` with
   sigma_attn = {list(water.sigma_attn)} /m, sigma_bs = {list(water.sigma_bs)} /m,
-  c_med = {list(water.c_med)} (truth/water.json).
+  c_med = {list(water.c_med)} (truth/water.json). With one subsample a pixel this is the
+  formula on the stored clean image and range exactly; with more, it holds at the stored
+  means where the range and texture hardly change across the pixel (a pixel spanning an
+  occluding edge is the mean of its near and far rays, not the water at its mean range).
 - **Cameras**: pinhole, OpenCV axes (x right, y down, z forward), pixel centres at
   +0.5, normalisation centre 0 and scale 1 (units are metres). A frame's `near`/`far`
   are its minimum/maximum finite range times {1 - NEAR_FAR_MARGIN:.2f}/{1 + NEAR_FAR_MARGIN:.2f}

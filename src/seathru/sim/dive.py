@@ -3,7 +3,8 @@
 :func:`plan_dive` fixes everything the views share (scene, poses, camera, the radiometric
 calibration from an auto-exposure metering pass, per-image exposures and noise seeds);
 :func:`render_views` then synthesises each view: clean radiance and range by ray casting, the
-water image, the noisy raw mosaic and the camera JPEG. The random streams are split from one
+water image (the water acts on each subsample ray at its own range, then the pixel averages
+them, as a sensor pixel integrates its footprint), the noisy raw mosaic and the camera JPEG. The random streams are split from one
 ``numpy.random.SeedSequence(seed)`` (scene, path, exposures, noise; the noise stream once more
 per view), so the dive is deterministic given the spec, whatever the number of worker
 processes. Pure numpy, no file I/O (``seathru.io.truth`` writes a dive to disk).
@@ -114,6 +115,20 @@ class SimulatedView:
     jpeg: np.ndarray
 
 
+def subsampled_water_image(radiance: np.ndarray, range_m: np.ndarray, water: WaterParams
+                          ) -> np.ndarray:
+    """The image with water (H, W, 3) float32 of subsamples (``radiance`` (H, W, S, 3), ``range``
+    (H, W, S), as :func:`seathru.sim.scene.render_subsamples` gives them): the water acts on each
+    subsample at its own range, then the pixel takes their mean. Applying it once at the
+    pixel's mean range instead would give a pixel that spans ranges more backscatter and less
+    direct light than its rays bring (both are convex or concave in range), which no per-ray
+    model such as the trained renderer can reproduce."""
+    # float32 subsamples, as the clean image and range map are stored: one subsample a pixel
+    # gives exactly ``water_image(clean, range)``
+    rays = water_image(radiance.astype(np.float32), range_m.astype(np.float32), water)
+    return rays.astype(np.float64).mean(axis=2).astype(np.float32)
+
+
 def meter(scene: scene_mod.Scene, poses: np.ndarray, spec: DiveSpec) -> float:
     """Auto-exposure metering on a cheap low-resolution pass over all views: the 99th
     percentile of the brightest channel of the water image."""
@@ -122,8 +137,8 @@ def meter(scene: scene_mod.Scene, poses: np.ndarray, spec: DiveSpec) -> float:
     values = []
     for c2w in poses:
         origin, dirs = sensor_mod.pixel_rays(small, c2w, 1)
-        clean, range_m = scene_mod.render_view(scene, origin, dirs)
-        values.append(water_image(clean, range_m, spec.water).max(axis=2).ravel())
+        values.append(subsampled_water_image(*scene_mod.render_subsamples(scene, origin, dirs),
+                                             spec.water).max(axis=2).ravel())
     return float(np.percentile(np.concatenate(values), 99.0))
 
 
@@ -180,8 +195,9 @@ def _render_one(index: int) -> SimulatedView:
     spec, plan = job.spec, job.plan
     c2w, exposure = plan.poses[index], plan.exposures[index]
     origin, dirs = sensor_mod.pixel_rays(plan.camera, c2w, spec.supersample)
-    clean, range_m = scene_mod.render_view(plan.scene, origin, dirs)
-    water = water_image(clean, range_m, spec.water)
+    radiance, ranges = scene_mod.render_subsamples(plan.scene, origin, dirs)
+    clean, range_m = scene_mod.pixel_means(radiance, ranges)
+    water = subsampled_water_image(radiance, ranges, spec.water)
     signal = sensor_mod.expected_signal(water, exposure, plan.dn_per_unit)
     raw = sensor_mod.capture_raw(sensor_mod.mosaic_rggb(signal), exposure.iso, spec.sensor,
                                  np.random.default_rng(plan.noise_seeds[index]))

@@ -388,15 +388,16 @@ def shade(scene: Scene, origins: np.ndarray, dirs: np.ndarray, t: np.ndarray,
     return radiance
 
 
-def render_view(scene: Scene, origin: np.ndarray, dirs: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Clean image and range of one view.
+def render_subsamples(scene: Scene, origin: np.ndarray, dirs: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Clean radiance and range of every subsample of one view, before the pixel averages them.
 
     ``origin`` (3,) camera centre, ``dirs`` (H, W, S, 3) unit ray directions, S subsamples per
-    pixel. Returns ``clean`` (H, W, 3) float32 (mean radiance of the subsamples) and ``range``
-    (H, W) float32 (mean range of the subsamples, metres). A pixel where any subsample sees
-    open water (no surface) is an open-water pixel: range ``+inf`` and clean radiance 0 (there
-    is no surface to restore).
+    pixel. Returns ``radiance`` (H, W, S, 3) float64 (0 where a subsample sees open water) and
+    ``range`` (H, W, S) float64 (metres; ``+inf`` = open water). The water acts on each
+    subsample's own range (``seathru.sim.dive``): a pixel that spans ranges (a grazing seabed,
+    an occluding edge) is the mean of what each of its rays brings, as a sensor pixel
+    integrates it.
     """
     h, w, s, _ = dirs.shape
     flat = np.ascontiguousarray(dirs.reshape(-1, 3), dtype=np.float64)
@@ -404,9 +405,24 @@ def render_view(scene: Scene, origin: np.ndarray, dirs: np.ndarray
     t, index = cast_rays(scene, origin, flat, candidates=_view_candidates(scene, origin, dirs))
     radiance = shade(scene, origin, flat, t, index)
     t = np.where(index == NO_HIT, np.inf, t)
-    rng_m = t.reshape(h, w, s).mean(axis=2)
-    clean = np.where(np.isfinite(rng_m)[..., None], radiance.reshape(h, w, s, 3).mean(axis=2),
-                     0.0)
+    return radiance.reshape(h, w, s, 3), t.reshape(h, w, s)
+
+
+def pixel_means(radiance: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The clean image and range map of subsamples from :func:`render_subsamples`: ``clean``
+    (H, W, 3) float32, the mean radiance of the subsamples, and ``range`` (H, W) float32, their
+    mean range. A pixel where any subsample sees open water (no surface) is an open-water pixel:
+    range ``+inf`` and clean radiance 0 (there is no surface to restore)."""
+    rng_m = range_m.mean(axis=2)
+    clean = np.where(np.isfinite(rng_m)[..., None], radiance.mean(axis=2), 0.0)
     return clean.astype(np.float32), rng_m.astype(np.float32)
 
 
+def render_view(scene: Scene, origin: np.ndarray, dirs: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Clean image and range of one view: :func:`pixel_means` of :func:`render_subsamples`.
+
+    ``origin`` (3,) camera centre, ``dirs`` (H, W, S, 3) unit ray directions. Returns ``clean``
+    (H, W, 3) float32 and ``range`` (H, W) float32 (metres, ``+inf`` = open water).
+    """
+    return pixel_means(*render_subsamples(scene, origin, dirs))
