@@ -4,10 +4,10 @@
 calibration from an auto-exposure metering pass, per-image exposures and noise seeds);
 :func:`render_views` then synthesises each view: clean radiance and range by ray casting, the
 water image (the water acts on each subsample ray at its own range, then the pixel averages
-them, as a sensor pixel integrates its footprint), the noisy raw mosaic and the camera JPEG. The random streams are split from one
-``numpy.random.SeedSequence(seed)`` (scene, path, exposures, noise; the noise stream once more
-per view), so the dive is deterministic given the spec, whatever the number of worker
-processes. Pure numpy, no file I/O (``seathru.io.truth`` writes a dive to disk).
+them, as a sensor pixel integrates its footprint), the noisy raw mosaic and the camera JPEG.
+The random streams are split from one ``numpy.random.SeedSequence(seed)`` (scene, path,
+exposures, noise; the noise stream once more per view), so the dive is deterministic given the
+spec, whatever the number of worker processes. Pure numpy, no file I/O (``seathru.io.truth`` writes a dive to disk).
 """
 
 from __future__ import annotations
