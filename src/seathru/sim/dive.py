@@ -7,7 +7,8 @@ water image (the water acts on each subsample ray at its own range, then the pix
 them, as a sensor pixel integrates its footprint), the noisy raw mosaic and the camera JPEG.
 The random streams are split from one ``numpy.random.SeedSequence(seed)`` (scene, path,
 exposures, noise; the noise stream once more per view), so the dive is deterministic given the
-spec, whatever the number of worker processes. Pure numpy, no file I/O (``seathru.io.truth`` writes a dive to disk).
+spec, whatever the number of worker processes. Pure numpy, no file I/O (``seathru.io.truth``
+writes a dive to disk).
 """
 
 from __future__ import annotations
