@@ -394,10 +394,8 @@ def render_subsamples(scene: Scene, origin: np.ndarray, dirs: np.ndarray
 
     ``origin`` (3,) camera centre, ``dirs`` (H, W, S, 3) unit ray directions, S subsamples per
     pixel. Returns ``radiance`` (H, W, S, 3) float64 (0 where a subsample sees open water) and
-    ``range`` (H, W, S) float64 (metres; ``+inf`` = open water). The water acts on each
-    subsample's own range (``seathru.sim.dive``): a pixel that spans ranges (a grazing seabed,
-    an occluding edge) is the mean of what each of its rays brings, as a sensor pixel
-    integrates it.
+    ``range`` (H, W, S) float64 (metres; ``+inf`` = open water), for the water to act on
+    each ray at its own range (``seathru.sim.dive.subsampled_water_image``).
     """
     h, w, s, _ = dirs.shape
     flat = np.ascontiguousarray(dirs.reshape(-1, 3), dtype=np.float64)
