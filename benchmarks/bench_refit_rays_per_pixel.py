@@ -39,7 +39,7 @@ OPEN_WATER_PIXELS = 2000
 def survey_rays(water: str, supersample: int):
     """Every pixel of a 10-view survey at 160x120: centre-ray origins and directions, mean
     range (inf: open water), the rays' ranges (pixels, rays), their spread relative to the mean,
-    and the image with water."""
+    the image with water and the clean image (the mean of the rays' clean radiance)."""
     from seathru.io.textures import load_sample_textures
     from seathru.sim import dive as dive_mod
     from seathru.sim import scene as scene_mod
@@ -51,11 +51,12 @@ def survey_rays(water: str, supersample: int):
                              supersample=supersample, seabed_amplitude=0.08)
     plan = dive_mod.plan_dive(spec, load_sample_textures())
     parts: dict[str, list[np.ndarray]] = {k: [] for k in
-                                          ("origins", "dirs", "range", "rays", "spread", "image")}
+                                          ("origins", "dirs", "range", "rays", "spread", "image",
+                                           "clean")}
     for c2w in plan.poses:
         origin, dirs = sensor.pixel_rays(plan.camera, c2w, supersample)
         radiance, ranges = scene_mod.render_subsamples(plan.scene, origin, dirs)
-        _, mean_range = scene_mod.pixel_means(radiance, ranges)
+        clean, mean_range = scene_mod.pixel_means(radiance, ranges)
         centre_origin, centre_dirs = sensor.pixel_rays(plan.camera, c2w, 1)
         with np.errstate(invalid="ignore"):
             spread = (ranges.max(axis=2) - ranges.min(axis=2)) / mean_range
@@ -66,6 +67,7 @@ def survey_rays(water: str, supersample: int):
         parts["spread"].append(np.nan_to_num(spread.reshape(-1), nan=0.0))
         parts["image"].append(dive_mod.subsampled_water_image(radiance, ranges, spec.water)
                               .reshape(-1, 3).astype(np.float64))
+        parts["clean"].append(clean.reshape(-1, 3).astype(np.float64))
     return spec.water, {k: np.concatenate(v) for k, v in parts.items()}
 
 

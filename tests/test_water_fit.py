@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from seathru.nerf.water_fit import (SurfaceData, brightness_weights, dark_pixels,
-                                    fit_surfaces, fit_water, noise_allowance, projected_loss,
-                                    residual_outliers, surface_data, voxel_groups)
+from seathru.nerf.water_fit import (SurfaceData, WaterFit, brightness_weights, dark_pixels,
+                                    fit_surfaces, fit_water, noise_allowance, noise_term,
+                                    projected_loss, projected_residuals, residual_outliers,
+                                    surface_data, unshared_variance, voxel_groups)
 from seathru.nerf.water_uncertainty import group_scores, laplace_halfwidths
 
 TRUE = {"sigma_attn": [0.55, 0.25, 0.20], "sigma_bs": [0.45, 0.30, 0.25],
@@ -481,3 +482,77 @@ def test_trimming_leaves_clean_data_and_open_water_alone():
     assert len(used.ranges) > 0.95 * len(data.ranges)
     assert int(used.ids.max()) + 1 == used.groups
     assert max(_errors(fit)) < 0.05
+
+
+def _textured(seed: int, groups: int = 1500, per_group: int = 6, texture: float = 0.3,
+              open_water: int = 500):
+    """Groups whose pixels each see their own spot: clean colour times (1 + texture noise),
+    transmitted by the water like the signal; plus open-water pixels at ``c_med``."""
+    rng = np.random.default_rng(seed)
+    clean = rng.uniform(0.05, 0.9, size=(groups, 3))
+    ids = np.repeat(np.arange(groups), per_group)
+    ranges = rng.uniform(0.5, 6.0, ids.size)
+    attn, bs, c_med = (np.array(TRUE[k]) for k in KEYS)
+    spots = clean[ids] * (1.0 + texture * rng.standard_normal((ids.size, 3)))
+    observed = spots * np.exp(-attn * ranges[:, None]) + c_med * (1 - np.exp(-bs * ranges[:, None]))
+    ranges = np.r_[ranges, np.full(open_water, np.inf)]
+    observed = np.r_[observed, np.tile(c_med, (open_water, 1))]
+    ids = np.r_[ids, np.full(open_water, groups)]
+    return (torch.from_numpy(ranges), torch.from_numpy(observed), torch.from_numpy(ids),
+            groups + 1)
+
+
+def test_noise_term_is_what_fitting_a_groups_colour_takes_out_of_its_residuals():
+    # One group, float64 reference by simulation: E[RSS] = tr S - f'Sf / f'f at the true water.
+    rng = np.random.default_rng(3)
+    ranges = torch.from_numpy(rng.uniform(0.5, 8.0, 7))
+    attn = torch.tensor(TRUE["sigma_attn"], dtype=torch.float64)
+    bs = torch.tensor(TRUE["sigma_bs"], dtype=torch.float64)
+    c_med = torch.tensor(TRUE["c_med"], dtype=torch.float64)
+    unshared = torch.from_numpy(rng.uniform(1e-4, 4e-3, (7, 3)))
+    ids = torch.zeros(7, dtype=torch.long)
+    transmission = torch.exp(-attn * ranges[:, None])
+    signal = 5.0 * transmission + c_med * (1 - torch.exp(-bs * ranges[:, None]))
+    draws = 20000  # each draw of the noise its own group
+    noise = torch.from_numpy(rng.standard_normal((draws, 7, 3))) * unshared.sqrt()
+    observed = (signal + noise).reshape(-1, 3)
+    residuals = projected_residuals(attn, bs, c_med, ranges.repeat(draws), observed,
+                                    torch.arange(draws).repeat_interleave(7), draws)[0]
+    expected = unshared.sum() - noise_term(attn, ranges, unshared, ids, 1)
+    assert float((residuals ** 2).sum() / draws) == pytest.approx(float(expected), rel=0.02)
+
+
+def test_unshared_variance_follows_the_texture_variance_near_and_leaves_open_water_out():
+    rng = np.random.default_rng(4)
+    groups, per_group = 3000, 8
+    ids = np.repeat(np.arange(groups), per_group)
+    ranges = rng.uniform(0.5, 6.0, ids.size)
+    variance = np.where(ranges < 3.0, 4e-3, 1e-3)[:, None] * np.ones(3)
+    attn, bs, c_med = (np.array(TRUE[k]) for k in KEYS)
+    transmission = np.exp(-attn * ranges[:, None])
+    spots = rng.uniform(0.2, 0.8, (groups, 3))[ids] + np.sqrt(variance) * rng.standard_normal(
+        (ids.size, 3))
+    observed = spots * transmission + c_med * (1 - np.exp(-bs * ranges[:, None]))
+    ranges, observed = np.r_[ranges, np.inf, np.inf], np.r_[observed, [c_med, c_med]]
+    ids = np.r_[ids, groups, groups]
+    fit = WaterFit(TRUE["sigma_attn"], TRUE["sigma_bs"], TRUE["c_med"], 0.0, ids.size, groups + 1)
+    estimated = unshared_variance(fit, torch.from_numpy(ranges), torch.from_numpy(observed),
+                                  torch.from_numpy(ids), groups + 1, bins=6).numpy()
+    assert np.all(estimated[-2:] == 0.0)
+    near = ranges[:-2] < 2.5
+    ratio = estimated[:-2][near] / (variance[near] * transmission[near] ** 2)
+    # a rough estimate (docs/water.md): the near bins within 30%, every channel
+    assert np.all((np.median(ratio, axis=0) > 0.65) & (np.median(ratio, axis=0) < 1.15))
+
+
+def test_the_noise_term_takes_away_the_pull_of_texture_that_fades_with_range():
+    data = _textured(0)
+    plain = fit_water(*data, START)
+    termed = fit_water(*data, START, noise_term=True)
+
+    def attenuation_error(fit) -> float:
+        return float(np.abs(np.array(fit.sigma_attn) / TRUE["sigma_attn"] - 1).mean())
+
+    red_bs = [abs(fit.sigma_bs[0] / TRUE["sigma_bs"][0] - 1) for fit in (plain, termed)]
+    assert attenuation_error(plain) > 0.06 and attenuation_error(termed) < 0.03
+    assert red_bs[1] < 0.25 * red_bs[0], red_bs

@@ -188,6 +188,10 @@ class MediumConfig:
     balance_brightness: bool = setting(
         True, help="refits weight each surface voxel by its inverse clean colour, so that bright "
                    "surfaces do not set the attenuation alone (false: every pixel alike)")
+    refit_noise_term: bool = setting(
+        True, help="refits add back what fitting each surface voxel's clean colour takes out of "
+                   "its residuals, the pull of texture that fades with range (docs/water.md, "
+                   "\"The red backscatter on the surveys\"; false: plain least squares)")
     refit_max_relative: float = setting(
         1.0, help="a refitted value replaces the current one only if its 95% half-width is "
                   "below this share of it (and the fit did not run to the edge of the "

@@ -7,10 +7,11 @@ simulator's true depth in the diagnostic benchmark), the SeaThru image formation
 
 per channel. Pixels are grouped by the surface point they see (:func:`correspondence_rays`:
 one point's pixel in every view that sees it) or by the voxel their surface point falls in,
-with one unknown clean colour ``J`` per group and channel; for given water the best non-negative ``J`` of each
-voxel has a closed form, so the fit runs over the 9 water parameters alone. The same surface
-seen from several ranges is what pins the attenuation down (as in Sea-thru's regression on
-range); surfaces seen at one range only leave ``J`` and the water traded against each other.
+with one unknown clean colour ``J`` per group and channel; for given water the best
+non-negative ``J`` of each voxel has a closed form, so the fit runs over the 9 water parameters
+alone. The same surface seen from several ranges is what pins the attenuation down (as in
+Sea-thru's regression on range); surfaces seen at one range only leave ``J`` and the water
+traded against each other.
 
 How well the images determine the water is :mod:`seathru.nerf.water_uncertainty`'s.
 """
@@ -353,7 +354,7 @@ def ranged_groups(ranges: Tensor, ids: Tensor, groups: int, min_pixels: int = 3,
 
 def projected_loss(sigma_attn: Tensor, sigma_bs: Tensor, c_med: Tensor, ranges: Tensor,
                    observed: Tensor, ids: Tensor, groups: int,
-                   weights: Tensor | None = None) -> Tensor:
+                   weights: Tensor | None = None, unshared: Tensor | None = None) -> Tensor:
     """Mean squared residual of the image formation with the best clean colour per group.
 
     Args:
@@ -363,12 +364,82 @@ def projected_loss(sigma_attn: Tensor, sigma_bs: Tensor, c_med: Tensor, ranges: 
         ids: (N,) group of each pixel (``voxel_groups``); groups: their number.
         weights: optional (groups, 3) weight of each group's squared residuals per channel
             (:func:`brightness_weights`); a group's clean colour does not depend on it.
+        unshared: optional (N, 3) variance of what each pixel does not share with its group
+            (:func:`unshared_variance`): each group's loss gets back the share of it that
+            fitting the group's clean colour takes away (:func:`noise_term`).
 
     Returns:
         the scalar loss (differentiable in the water parameters).
     """
-    return (projected_residuals(sigma_attn, sigma_bs, c_med, ranges, observed, ids, groups,
-                                 weights)[0] ** 2).mean()
+    loss = (projected_residuals(sigma_attn, sigma_bs, c_med, ranges, observed, ids, groups,
+                                weights)[0] ** 2).mean()
+    if unshared is None:
+        return loss
+    return loss + noise_term(sigma_attn, ranges, unshared, ids, groups, weights) / observed.numel()
+
+
+def noise_term(sigma_attn: Tensor, ranges: Tensor, unshared: Tensor, ids: Tensor, groups: int,
+               weights: Tensor | None = None) -> Tensor:
+    """Sum over groups (and channels) of ``f'Sf / f'f``: the part of the unshared variance that
+    fitting a group's clean colour takes out of its squared residuals (``f`` the group's
+    transmissions ``exp(-sigma_attn z)``, ``S`` its pixels' unshared variances).
+
+    A group's expected squared residual is its signal misfit plus ``tr S - f'Sf / f'f``. Where
+    ``S`` falls with range (the texture a pixel does not share is transmitted by the water as
+    the signal is), the second term grows as ``f`` leans on the near pixels, that is with the
+    attenuation, and pulls the fit there (Neyman and Scott's incidental parameters: one clean
+    colour a group, so the pull does not shrink with more groups). Adding it back leaves the
+    misfit's expectation alone to be minimised.
+
+    Args:
+        sigma_attn: (3,) attenuation; ranges: (N,) (inf: open water, no term).
+        unshared: (N, 3) variances; ids, groups: the pixels' groups.
+        weights: optional (groups, 3) group weights, as :func:`projected_loss`'s.
+
+    Returns:
+        the scalar term.
+    """
+    f2 = torch.exp(-2.0 * sigma_attn * ranges.clamp_max(1e6)[:, None])
+    num = unshared.new_zeros(groups, 3).index_add_(0, ids, f2 * unshared)
+    den = unshared.new_zeros(groups, 3).index_add_(0, ids, f2)
+    term = num / den.clamp_min(1e-300)
+    return (term if weights is None else term * weights).sum()
+
+
+def unshared_variance(fit: "WaterFit", ranges: Tensor, observed: Tensor, ids: Tensor,
+                      groups: int, bins: int = 12) -> Tensor:
+    """(N, 3) variance of what each surface pixel does not share with its group, from the
+    residuals at ``fit``: per channel, the squared residuals over one minus the pixel's leverage
+    on its group's clean colour, fitted by least squares with a constant (sensor noise, which
+    pulls nothing and is left out) plus a variance per quantile bin of range times the squared
+    transmission ``exp(-2 sigma_attn z)``. A rough estimate (docs/water.md, "The refit adds
+    the term back", for what it gets wrong and why it is kept); 0 for open water.
+
+    Returns:
+        (N, 3) float64.
+    """
+    ranges, observed = ranges.double(), observed.double()
+    theta = water_vector(fit).to(ranges.device).split(3)
+    residuals, _, used = projected_residuals(*theta, ranges, observed, ids, groups)
+    surface = torch.isfinite(ranges)
+    if not bool(surface.any()):
+        return torch.zeros_like(observed)
+    f2 = torch.exp(-2.0 * theta[0] * used[:, None])
+    norm = observed.new_zeros(groups, 3).index_add_(0, ids, f2)
+    leverage = (f2 / norm[ids].clamp_min(1e-300)).clamp_max(0.9)
+    z = ranges[surface]
+    edges = torch.quantile(z, torch.linspace(0.0, 1.0, bins + 1, dtype=z.dtype))[1:-1]
+    which = torch.zeros_like(ranges, dtype=torch.long)
+    which[surface] = torch.bucketize(z, edges)
+    one_hot = F.one_hot(which, bins).to(z.dtype) * surface[:, None]
+    variance = torch.zeros(bins, 3, dtype=z.dtype)
+    for c in range(3):
+        design = torch.cat([torch.ones_like(f2[:, :1]), f2[:, c:c + 1] * one_hot], 1)[surface]
+        squared = (residuals[:, c:c + 1] ** 2 / (1.0 - leverage[:, c:c + 1]))[surface]
+        variance[:, c] = torch.linalg.lstsq(design, squared).solution[1:, 0].clamp_min(0.0)
+    unshared = torch.zeros_like(observed)
+    unshared[surface] = f2[surface] * variance[which[surface]]
+    return unshared
 
 
 def brightness_weights(clean: Tensor, c_med: Tensor, open_water_group: bool,
@@ -460,7 +531,8 @@ def dark_excess(sigma_bs: Tensor, c_med: Tensor, dark: tuple[Tensor, Tensor]) ->
 def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start: dict,
               steps: int = 300, colour_max: float = 1.5,
               dark: tuple[Tensor, Tensor] | None = None, dark_weight: float = 10.0,
-              balance_brightness: bool = True, brightness_floor: float = 1.0) -> WaterFit:
+              balance_brightness: bool = True, brightness_floor: float = 1.0,
+              noise_term: bool = False) -> WaterFit:
     """Fit the 9 water parameters by L-BFGS on :func:`projected_loss`, in float64.
 
     Nine smooth parameters and a cheap exact loss: a quasi-Newton method with a line search
@@ -480,6 +552,9 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
             (:func:`brightness_weights`, taken at an unweighted fit and once more at the
             weighted one); False fits every pixel alike.
         brightness_floor: :func:`brightness_weights`' ``floor``.
+        noise_term: add back what fitting each group's clean colour takes out of its
+            residuals (:func:`noise_term`, with :func:`unshared_variance` taken at the fit
+            without it and once more at the fit with it).
 
     Returns:
         the fitted water, its loss and the group weights it used.
@@ -496,12 +571,18 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
             weights = _weights_at(free, ranges, observed, ids, groups, brightness_floor)
             free = _fit_water(ranges, observed, ids, groups, water_start(free), steps, colour_max,
                               weights=weights)
+    unshared = None
+    if noise_term:
+        for _ in range(2):
+            unshared = unshared_variance(free, ranges, observed, ids, groups)
+            free = _fit_water(ranges, observed, ids, groups, water_start(free), steps, colour_max,
+                              weights=weights, unshared=unshared)
     if dark is None:
         return free
     allowance = noise_allowance(free, ranges, observed, ids, groups)
     dark = (dark[0], dark[1].to(allowance) + allowance)
     return _fit_water(ranges, observed, ids, groups, water_start(free), steps, colour_max, dark,
-                      dark_weight, weights)
+                      dark_weight, weights, unshared)
 
 
 def residual_outliers(fit: WaterFit, data: SurfaceData, threshold: float) -> Tensor:
@@ -563,7 +644,7 @@ def without_pixels(data: SurfaceData, drop: Tensor) -> SurfaceData | str:
 
 def fit_surfaces(data: SurfaceData, start: dict, steps: int = 300, colour_max: float = 1.5,
                  dark_bound: bool = True, balance_brightness: bool = True,
-                 trim: float = 0.0) -> tuple[WaterFit, SurfaceData]:
+                 trim: float = 0.0, noise_term: bool = False) -> tuple[WaterFit, SurfaceData]:
     """:func:`fit_water` on ``data``; with ``trim`` > 0, fitted again without the
     :func:`residual_outliers` at ``trim`` robust standard deviations, from the first fit.
 
@@ -573,6 +654,7 @@ def fit_surfaces(data: SurfaceData, start: dict, steps: int = 300, colour_max: f
         dark_bound: use ``data.dark`` (the dark-pixel bound); balance_brightness: see
             :func:`fit_water`.
         trim: robust standard deviations beyond which a pixel is left out; 0 fits once.
+        noise_term: :func:`fit_water`'s.
 
     Returns:
         the fit and the data it was made on (``data`` itself when nothing was trimmed).
@@ -585,7 +667,8 @@ def fit_surfaces(data: SurfaceData, start: dict, steps: int = 300, colour_max: f
     """
     dark = data.dark if dark_bound else None
     fit = fit_water(data.ranges, data.observed, data.ids, data.groups, start, steps,
-                    colour_max, dark, balance_brightness=balance_brightness)
+                    colour_max, dark, balance_brightness=balance_brightness,
+                    noise_term=noise_term)
     if trim <= 0:
         return fit, data
     outliers = residual_outliers(fit, data, trim)
@@ -594,7 +677,8 @@ def fit_surfaces(data: SurfaceData, start: dict, steps: int = 300, colour_max: f
         return fit, data
     return fit_water(trimmed.ranges, trimmed.observed, trimmed.ids, trimmed.groups,
                      water_start(fit),
-                     steps, colour_max, dark, balance_brightness=balance_brightness), trimmed
+                     steps, colour_max, dark, balance_brightness=balance_brightness,
+                     noise_term=noise_term), trimmed
 
 
 def water_start(fit: WaterFit) -> dict[str, list[float]]:
@@ -668,8 +752,10 @@ def minimise_relative(raw: Tensor, objective, steps: int,
 
 def _fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start: dict,
                steps: int, colour_max: float, dark: tuple[Tensor, Tensor] | None = None,
-               dark_weight: float = 10.0, weights: Tensor | None = None) -> WaterFit:
-    """One L-BFGS fit of :func:`fit_water` with fixed group ``weights`` (or none)."""
+               dark_weight: float = 10.0, weights: Tensor | None = None,
+               unshared: Tensor | None = None) -> WaterFit:
+    """One L-BFGS fit of :func:`fit_water` with fixed group ``weights`` (or none) and
+    :func:`noise_term` variances ``unshared`` (or none)."""
     raw = water_raw(start, colour_max, ranges.device)
     ranges, observed = ranges.double(), observed.double()
     if dark is not None:
@@ -677,7 +763,7 @@ def _fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start
 
     def objective() -> Tensor:
         attn, bs, c_med = water_of_raw(raw, colour_max)
-        loss = projected_loss(attn, bs, c_med, ranges, observed, ids, groups, weights)
+        loss = projected_loss(attn, bs, c_med, ranges, observed, ids, groups, weights, unshared)
         if dark is not None:
             loss = loss + dark_weight * dark_excess(bs, c_med, dark)
         return loss

@@ -109,7 +109,7 @@ class WaterRefitting:
         medium = self.config.medium
         return fit_surfaces(data, start, medium.refit_steps, self.model.medium.colour_max,
                             medium.dark_pixel_bound, medium.balance_brightness,
-                            medium.refit_trim)
+                            medium.refit_trim, medium.refit_noise_term)
 
     def _skip_refits_passed_meanwhile(self) -> None:
         """Record the refit points training passed while the last refit ran as skipped.
