@@ -10,8 +10,9 @@ survey at 160x120, noise-free, true ranges, 0.054 m voxels, 2,000 open-water pix
 ``c_med``; ``fit_water`` with brightness weights, no dark bound), side by side:
 
 - the plain fit;
-- with the term, ``S`` from the truth: the spread of each pixel's clean colour about its group's
-  mean, per range bin (12 quantile bins), transmitted by the true water;
+- with the term (``fit_water(noise_term=True)``), ``S`` from the truth: the spread of each
+  pixel's clean colour about its group's mean, per range bin (12 quantile bins), transmitted by
+  the true water (``water_fit.unshared_variance`` patched to return it);
 - with the term as the refit has it (``fit_water(noise_term=True)``: ``S`` estimated from the
   residuals per range bin, ``water_fit.unshared_variance``).
 
@@ -85,21 +86,6 @@ def estimated_variance(fit, g: dict, tensors: tuple) -> np.ndarray:
     return np.stack([np.bincount(g["bin"], per_pixel[:, c], BINS) for c in range(3)], 1) / per_bin
 
 
-def with_noise_term(plain, unshared: torch.Tensor):
-    """``projected_loss`` plus each group's ``f'Sf / f'f`` (times its weight), ``S`` =
-    ``unshared`` (N, 3)."""
-    def loss(sigma_attn, sigma_bs, c_med, ranges, observed, ids, groups, weights=None):
-        f2 = torch.exp(-2.0 * sigma_attn * ranges.clamp_max(1e6)[:, None])
-        num = observed.new_zeros(groups, 3).index_add_(0, ids, f2 * unshared)
-        den = observed.new_zeros(groups, 3).index_add_(0, ids, f2)
-        term = num / den.clamp_min(1e-12)
-        if weights is not None:
-            term = term * weights
-        return (plain(sigma_attn, sigma_bs, c_med, ranges, observed, ids, groups, weights)
-                + term.sum() / observed.numel())
-    return loss
-
-
 def rebuilt_rows(water: str, supersample: int, truth, g: dict, tensors: tuple) -> list[str]:
     """The plain fit of pixels rebuilt from their clean colours (see the module's docstring)."""
     import seathru.nerf.water_fit as water_fit
@@ -146,14 +132,14 @@ def one_dive(water: str, supersample: int) -> tuple[list[str], str, list[str]]:
     transmitted = np.exp(-2.0 * np.asarray(truth.sigma_attn) * g["ranges"][:, None])
     truth_var = truth_variance(g)
     estimated = estimated_variance(plain_fit, g, tensors)
-    plain = water_fit.projected_loss
+    estimate = water_fit.unshared_variance
     unshared = torch.cat([torch.from_numpy(transmitted * truth_var[g["bin"]]),
                           torch.zeros(OPEN_WATER_PIXELS, 3, dtype=torch.float64)])
-    water_fit.projected_loss = with_noise_term(plain, unshared)
+    water_fit.unshared_variance = lambda *args, **kwargs: unshared
     try:
-        fit = water_fit.fit_water(*tensors, START)
+        fit = water_fit.fit_water(*tensors, START, noise_term=True)
     finally:
-        water_fit.projected_loss = plain
+        water_fit.unshared_variance = estimate
     rows.append(f"| {water} | {rays} | term, variance from the truth | {errors(fit, truth)} |")
     fit = water_fit.fit_water(*tensors, START, noise_term=True)
     rows.append(f"| {water} | {rays} | term, variance from the residuals (`noise_term=True`) | "
