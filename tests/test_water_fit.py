@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from seathru.nerf.water_fit import (SurfaceData, WaterFit, brightness_weights, dark_pixels,
-                                    fit_surfaces, fit_water, noise_allowance, noise_term,
+                                    fit_surfaces, fit_water, incidental_term, noise_allowance,
                                     projected_loss, projected_residuals, residual_outliers,
                                     surface_data, unshared_variance, voxel_groups)
 from seathru.nerf.water_uncertainty import group_scores, laplace_halfwidths
@@ -502,7 +502,7 @@ def _textured(seed: int, groups: int = 1500, per_group: int = 6, texture: float 
             groups + 1)
 
 
-def test_noise_term_is_what_fitting_a_groups_colour_takes_out_of_its_residuals():
+def test_incidental_term_is_what_fitting_a_groups_colour_takes_out_of_its_residuals():
     # One group, float64 reference by simulation: E[RSS] = tr S - f'Sf / f'f at the true water.
     rng = np.random.default_rng(3)
     ranges = torch.from_numpy(rng.uniform(0.5, 8.0, 7))
@@ -518,7 +518,7 @@ def test_noise_term_is_what_fitting_a_groups_colour_takes_out_of_its_residuals()
     observed = (signal + noise).reshape(-1, 3)
     residuals = projected_residuals(attn, bs, c_med, ranges.repeat(draws), observed,
                                     torch.arange(draws).repeat_interleave(7), draws)[0]
-    expected = unshared.sum() - noise_term(attn, ranges, unshared, ids, 1)
+    expected = unshared.sum() - incidental_term(attn, ranges, unshared, ids, 1)
     assert float((residuals ** 2).sum() / draws) == pytest.approx(float(expected), rel=0.02)
 
 

@@ -191,7 +191,7 @@ class MediumConfig:
     refit_noise_term: bool = setting(
         True, help="refits add back what fitting each surface voxel's clean colour takes out of "
                    "its residuals, the pull of texture that fades with range (docs/water.md, "
-                   "\"The red backscatter on the surveys\"; false: plain least squares)")
+                   "\"The refit adds the term back\"; false: plain least squares)")
     refit_max_relative: float = setting(
         1.0, help="a refitted value replaces the current one only if its 95% half-width is "
                   "below this share of it (and the fit did not run to the edge of the "

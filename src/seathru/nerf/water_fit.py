@@ -366,7 +366,7 @@ def projected_loss(sigma_attn: Tensor, sigma_bs: Tensor, c_med: Tensor, ranges: 
             (:func:`brightness_weights`); a group's clean colour does not depend on it.
         unshared: optional (N, 3) variance of what each pixel does not share with its group
             (:func:`unshared_variance`): each group's loss gets back the share of it that
-            fitting the group's clean colour takes away (:func:`noise_term`).
+            fitting the group's clean colour takes away (:func:`incidental_term`).
 
     Returns:
         the scalar loss (differentiable in the water parameters).
@@ -375,11 +375,12 @@ def projected_loss(sigma_attn: Tensor, sigma_bs: Tensor, c_med: Tensor, ranges: 
                                 weights)[0] ** 2).mean()
     if unshared is None:
         return loss
-    return loss + noise_term(sigma_attn, ranges, unshared, ids, groups, weights) / observed.numel()
+    term = incidental_term(sigma_attn, ranges, unshared, ids, groups, weights)
+    return loss + term / observed.numel()
 
 
-def noise_term(sigma_attn: Tensor, ranges: Tensor, unshared: Tensor, ids: Tensor, groups: int,
-               weights: Tensor | None = None) -> Tensor:
+def incidental_term(sigma_attn: Tensor, ranges: Tensor, unshared: Tensor, ids: Tensor,
+                    groups: int, weights: Tensor | None = None) -> Tensor:
     """Sum over groups (and channels) of ``f'Sf / f'f``: the part of the unshared variance that
     fitting a group's clean colour takes out of its squared residuals (``f`` the group's
     transmissions ``exp(-sigma_attn z)``, ``S`` its pixels' unshared variances).
@@ -398,6 +399,11 @@ def noise_term(sigma_attn: Tensor, ranges: Tensor, unshared: Tensor, ids: Tensor
 
     Returns:
         the scalar term.
+
+    Example::
+
+        unshared = unshared_variance(fit, z, rgb, ids, groups)
+        loss = projected_loss(attn, bs, c_med, z, rgb, ids, groups, weights, unshared)
     """
     f2 = torch.exp(-2.0 * sigma_attn * ranges.clamp_max(1e6)[:, None])
     num = unshared.new_zeros(groups, 3).index_add_(0, ids, f2 * unshared)
@@ -553,7 +559,7 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
             weighted one); False fits every pixel alike.
         brightness_floor: :func:`brightness_weights`' ``floor``.
         noise_term: add back what fitting each group's clean colour takes out of its
-            residuals (:func:`noise_term`, with :func:`unshared_variance` taken at the fit
+            residuals (:func:`incidental_term`, with :func:`unshared_variance` taken at the fit
             without it and once more at the fit with it).
 
     Returns:
@@ -755,7 +761,7 @@ def _fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start
                dark_weight: float = 10.0, weights: Tensor | None = None,
                unshared: Tensor | None = None) -> WaterFit:
     """One L-BFGS fit of :func:`fit_water` with fixed group ``weights`` (or none) and
-    :func:`noise_term` variances ``unshared`` (or none)."""
+    :func:`incidental_term` variances ``unshared`` (or none)."""
     raw = water_raw(start, colour_max, ranges.device)
     ranges, observed = ranges.double(), observed.double()
     if dark is not None:
