@@ -65,14 +65,24 @@ def exact_groups(px: dict) -> dict:
             "bin": np.clip(np.searchsorted(edges, ranges) - 1, 0, BINS - 1), "edges": edges}
 
 
+def group_means(g: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(groups,) pixel counts and (groups, 3) mean clean colour of each group."""
+    count = np.bincount(g["ids"], minlength=g["groups"])
+    return count, np.stack([np.bincount(g["ids"], g["clean"][:, c], g["groups"]) / count
+                            for c in range(3)], 1)
+
+
+def bin_means(g: dict, per_pixel: np.ndarray) -> np.ndarray:
+    """(BINS, 3) mean of an (N, 3) per-pixel quantity over each range bin."""
+    per_bin = np.bincount(g["bin"], minlength=BINS)[:, None]
+    return np.stack([np.bincount(g["bin"], per_pixel[:, c], BINS) for c in range(3)], 1) / per_bin
+
+
 def truth_variance(g: dict) -> np.ndarray:
     """(BINS, 3) mean squared spread of the pixels' clean colour about their group's mean."""
-    count = np.bincount(g["ids"], minlength=g["groups"])
-    mean = np.stack([np.bincount(g["ids"], g["clean"][:, c], g["groups"]) / count
-                     for c in range(3)], 1)
-    spread = (g["clean"] - mean[g["ids"]]) ** 2 * (count / np.maximum(count - 1, 1))[g["ids"], None]
-    per_bin = np.bincount(g["bin"], minlength=BINS)[:, None]
-    return np.stack([np.bincount(g["bin"], spread[:, c], BINS) for c in range(3)], 1) / per_bin
+    count, mean = group_means(g)
+    unbiased = (count / np.maximum(count - 1, 1))[g["ids"], None]
+    return bin_means(g, (g["clean"] - mean[g["ids"]]) ** 2 * unbiased)
 
 
 def estimated_variance(fit, g: dict, tensors: tuple) -> np.ndarray:
@@ -81,9 +91,8 @@ def estimated_variance(fit, g: dict, tensors: tuple) -> np.ndarray:
     import seathru.nerf.water_fit as water_fit
 
     unshared = water_fit.unshared_variance(fit, *tensors)[:len(g["ranges"])].numpy()
-    per_pixel = unshared / np.exp(-2.0 * np.asarray(fit.sigma_attn) * g["ranges"][:, None])
-    per_bin = np.bincount(g["bin"], minlength=BINS)[:, None]
-    return np.stack([np.bincount(g["bin"], per_pixel[:, c], BINS) for c in range(3)], 1) / per_bin
+    return bin_means(g, unshared / np.exp(-2.0 * np.asarray(fit.sigma_attn)
+                                          * g["ranges"][:, None]))
 
 
 def rebuilt_rows(water: str, supersample: int, truth, g: dict, tensors: tuple) -> list[str]:
@@ -93,9 +102,8 @@ def rebuilt_rows(water: str, supersample: int, truth, g: dict, tensors: tuple) -
     attn, bs, c_med = (np.asarray(getattr(truth, k)) for k in ("sigma_attn", "sigma_bs", "c_med"))
     transmission = np.exp(-attn * g["ranges"][:, None])
     backscatter = c_med * (1.0 - np.exp(-bs * g["ranges"][:, None]))
-    ids, groups = g["ids"], g["groups"]
-    count = np.bincount(ids, minlength=groups)
-    mean = np.stack([np.bincount(ids, g["clean"][:, c], groups) / count for c in range(3)], 1)
+    ids = g["ids"]
+    mean = group_means(g)[1]
     deviation = g["clean"] - mean[ids]
     by_group = np.argsort(ids, kind="stable")
     shuffled_order = np.lexsort((np.random.default_rng(0).random(len(ids)), ids))
