@@ -24,6 +24,12 @@ water at its mean range, then the same with the deviations from the group's mean
 among the group's pixels (the same deviations, no longer tied to range), and with none.
 
     python benchmarks/bench_refit_noise_term.py [--waters default,coastal_3c] [--rays 1,2,4]
+    python benchmarks/bench_refit_noise_term.py --trained WORK --out FILE
+
+With ``--trained``, the same question on trained models instead: every ``*/train_cues`` model
+of a ``bench_water.py`` work folder (trained without the term), its final surfaces refitted
+once each way with the training's settings (``fit_surfaces``: trim, dark bound, brightness
+weights), no training noise between the two.
 
 Writes benchmarks/results/refit_noise_term.md. About 3 min a water on 2 CPU cores.
 """
@@ -161,14 +167,55 @@ def one_dive(water: str, supersample: int) -> tuple[list[str], str, list[str]]:
     return rows, spread, rows_rebuilt
 
 
+def trained_rows(work: Path) -> list[str]:
+    """Per trained model: the final surfaces' refit without and with the term (% errors)."""
+    from bench_water_intervals import KEYS, model_surfaces
+    from seathru.nerf.water_fit import fit_surfaces
+
+    rows, within = [], {False: 0, True: 0}
+    for train in sorted(work.glob("*/train_cues")):
+        data, model, truth, trained, _, _ = model_surfaces(train.parent, train)
+        if isinstance(data, str):
+            rows.append(f"| {train.parent.name} | {data} | |")
+            continue
+        medium, cells = model.config.medium, [train.parent.name]
+        for term in (False, True):
+            fit, _ = fit_surfaces(data, trained, medium.refit_steps, model.medium.colour_max,
+                                  medium.dark_pixel_bound, medium.balance_brightness,
+                                  medium.refit_trim, term)
+            error = [100 * (v / t - 1) for k in KEYS for v, t in zip(getattr(fit, k), truth[k])]
+            within[term] += sum(abs(e) <= 5 for e in error)
+            cells.append("; ".join(", ".join(f"{e:+.1f}" for e in error[i:i + 3])
+                                   for i in (0, 3, 6)))
+        rows.append("| " + " | ".join(cells) + " |")
+        print(rows[-1], flush=True)
+    rows.append(f"| values within 5% | {within[False]} | {within[True]} |")
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--waters", default="default,coastal_3c")
     parser.add_argument("--rays", default="1,2,4", help="rays a pixel's side, comma-separated")
+    parser.add_argument("--trained", type=Path, help="a bench_water.py work folder")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
     torch.set_num_threads(2)
     started = time.time()
+    if args.trained:
+        lines = ["# The incidental-parameter term on trained models' final surfaces "
+                 "(`benchmarks/bench_refit_noise_term.py --trained`)", "",
+                 f"Models: `{args.trained}/*/train_cues` (3-min `bench_water.py` runs without "
+                 "the term); each model's final surfaces refitted with the training's settings, "
+                 "without and with the term; errors against the simulator's water "
+                 "(%: `sigma_attn` R, G, B; `sigma_bs`; `c_med`).", "",
+                 "| dive | without the term | with it |", "|---|---|---|",
+                 *trained_rows(args.trained), "",
+                 f"Machine: {cpu_name()}; {time.strftime('%Y-%m-%d')}; "
+                 f"{(time.time() - started) / 60:.0f} min in all.", ""]
+        args.out.write_text("\n".join(lines))
+        print("\n".join(lines))
+        return
     results = [one_dive(water, supersample) for water in args.waters.split(",")
                for supersample in map(int, args.rays.split(","))]
     lines = ["# The incidental-parameter term and the water refit (`benchmarks/"
