@@ -25,6 +25,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -45,12 +46,19 @@ SCENARIOS = {
     "colour off per surface": {"colour_sd": 0.03, "noise": 0.003},
     "floaters (5% of pixels)": {"floaters": 0.05},
     "far surfaces up to 10% short": {"far_bias": 0.10},
+    # texture each pixel sees at its own spot, transmitted like the signal: fitted with the
+    # incidental term (train.medium.refit_noise_term), the parts refitted with it as the robust
+    # intervals do since session 44, and without it as they did before
+    "texture fading with range, term": {"texture": 0.3, "noise": 0.003, "noise_term": True},
+    "texture fading with range, term; parts refitted without it": {
+        "texture": 0.3, "noise": 0.003, "noise_term": True, "parts_plain": True},
 }
 
 
 def synthetic(rng: np.random.Generator, groups: int = 150, per_group: int = 8,
               noise: float = 0.01, depth_sd: float = 0.0, colour_sd: float = 0.0,
-              far_bias: float = 0.0, floaters: float = 0.0, water: int = 0):
+              far_bias: float = 0.0, floaters: float = 0.0, water: int = 0,
+              texture: float = 0.0):
     """Surfaces at 0.5-8 m under TRUE water, and the ranges a model with the given errors
     would give them: (ranges, observed, ids, groups) as float64 / long tensors."""
     clean = rng.uniform(0.05, 0.9, (groups, 3))
@@ -60,6 +68,8 @@ def synthetic(rng: np.random.Generator, groups: int = 150, per_group: int = 8,
     observed = clean[ids] * np.exp(-attn * z[:, None]) + c_med * (1 - np.exp(-bs * z[:, None]))
     observed += noise * rng.standard_normal(observed.shape)
     observed += colour_sd * rng.standard_normal((groups, 3))[ids] * np.exp(-attn * z[:, None])
+    observed += texture * clean[ids] * rng.standard_normal(observed.shape) \
+        * np.exp(-attn * z[:, None])
     model_z = z * (1 + depth_sd * rng.standard_normal(groups))[ids]
     model_z = model_z * (1 - far_bias * np.clip((model_z - 4.0) / 4.0, 0.0, None))
     floater = rng.random(ids.size) < floaters
@@ -85,14 +95,21 @@ def synthetic_check(seeds: int) -> list[dict]:
     rows = []
     for name, options in SCENARIOS.items():
         counts = {"curvature": [], "robust": []}
-        determined, seconds = [], []
+        determined, seconds, relative = [], [], []
+        options = dict(options)
+        noise_term, parts_plain = options.pop("noise_term", False), options.pop("parts_plain",
+                                                                                False)
         for seed in range(seeds):
             data = synthetic(np.random.default_rng(seed), **options)
-            fit = fit_water(*data, {"sigma_attn": 0.3, "sigma_bs": 0.3, "c_med": 0.3})
+            fit = fit_water(*data, {"sigma_attn": 0.3, "sigma_bs": 0.3, "c_med": 0.3},
+                            noise_term=noise_term)
             centre = {k: getattr(fit, k) for k in KEYS}
             started = time.perf_counter()
-            robust = robust_halfwidths(fit, *data)
+            robust = robust_halfwidths(replace(fit, unshared=None) if parts_plain else fit,
+                                       *data)
             seconds.append(time.perf_counter() - started)
+            relative += [h / abs(c) for k in KEYS
+                         for h, c in zip(robust.halfwidth[k], centre[k])]
             counts["robust"] += covered(centre, robust.halfwidth, TRUE)
             counts["curvature"] += covered(centre, laplace_halfwidths(fit, *data).halfwidth,
                                            TRUE)
@@ -100,6 +117,7 @@ def synthetic_check(seeds: int) -> list[dict]:
         rows.append({"scenario": name, "intervals": len(counts["robust"]),
                      **{m: float(np.mean(v)) for m, v in counts.items()},
                      "robust_determined": float(np.mean(determined)),
+                     "robust_relative_halfwidth": float(np.median(relative)),
                      "robust_seconds": float(np.median(seconds))})
         print(rows[-1], flush=True)
     return rows
@@ -173,7 +191,7 @@ def assess_model(sim: Path, train: Path) -> dict:
     dark = data.dark if config.medium.dark_pixel_bound else None
     fit, data = fit_surfaces(data, trained, config.medium.refit_steps, model.medium.colour_max,
                              config.medium.dark_pixel_bound, config.medium.balance_brightness,
-                             config.medium.refit_trim)
+                             config.medium.refit_trim, config.medium.refit_noise_term)
     centre = {k: getattr(fit, k) for k in KEYS}
     started = time.perf_counter()
     robust = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,
@@ -211,11 +229,13 @@ def write_results(synthetic_rows: list[dict], model_rows: list[dict], args,
              "`laplace_halfwidths`, robust = `robust_halfwidths` (cluster-robust sandwich + "
              "between-part systematic term).", "",
              f"## Synthetic surfaces ({args.seeds} seeds, 150 voxels x 8 pixels, 0.5-8 m)", "",
-             "| scenario | curvature | robust | robust: determined | robust: seconds |",
-             "|---|---|---|---|---|"]
+             "| scenario | curvature | robust | robust: determined | robust: median half-width "
+             "(share of the value) | robust: seconds |",
+             "|---|---|---|---|---|---|"]
     for r in synthetic_rows:
         lines.append(f"| {r['scenario']} | {100 * r['curvature']:.0f}% | "
                      f"{100 * r['robust']:.0f}% | {100 * r['robust_determined']:.0f}% | "
+                     f"{100 * r['robust_relative_halfwidth']:.0f}% | "
                      f"{r['robust_seconds']:.2f} |")
     if model_rows:
         done = [r for r in model_rows if "skipped" not in r]

@@ -40,6 +40,7 @@ class WaterFit:
     pixels: int
     groups: int
     weights: Tensor | None = None  # (groups, 3) group weights used (brightness_weights)
+    unshared: Tensor | None = None  # (N, 3) variances its incidental_term used, if any
 
 
 @dataclass
@@ -538,7 +539,7 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
               steps: int = 300, colour_max: float = 1.5,
               dark: tuple[Tensor, Tensor] | None = None, dark_weight: float = 10.0,
               balance_brightness: bool = True, brightness_floor: float = 1.0,
-              noise_term: bool = False) -> WaterFit:
+              noise_term: bool = False, unshared: Tensor | None = None) -> WaterFit:
     """Fit the 9 water parameters by L-BFGS on :func:`projected_loss`, in float64.
 
     Nine smooth parameters and a cheap exact loss: a quasi-Newton method with a line search
@@ -561,6 +562,8 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
         noise_term: add back what fitting each group's clean colour takes out of its
             residuals (:func:`incidental_term`, with :func:`unshared_variance` taken at the fit
             without it and once more at the fit with it).
+        unshared: (N, 3) variances for that term, given (as another fit's ``unshared``, to
+            refit part of its data alike) instead of estimated; implies the term.
 
     Returns:
         the fitted water, its loss and the group weights it used.
@@ -577,8 +580,10 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
             weights = _weights_at(free, ranges, observed, ids, groups, brightness_floor)
             free = _fit_water(ranges, observed, ids, groups, water_start(free), steps, colour_max,
                               weights=weights)
-    unshared = None
-    if noise_term:
+    if unshared is not None:
+        free = _fit_water(ranges, observed, ids, groups, water_start(free), steps, colour_max,
+                          weights=weights, unshared=unshared)
+    elif noise_term:
         for _ in range(2):
             unshared = unshared_variance(free, ranges, observed, ids, groups)
             free = _fit_water(ranges, observed, ids, groups, water_start(free), steps, colour_max,
@@ -682,9 +687,8 @@ def fit_surfaces(data: SurfaceData, start: dict, steps: int = 300, colour_max: f
     if trimmed is data or isinstance(trimmed, str):
         return fit, data
     return fit_water(trimmed.ranges, trimmed.observed, trimmed.ids, trimmed.groups,
-                     water_start(fit),
-                     steps, colour_max, dark, balance_brightness=balance_brightness,
-                     noise_term=noise_term), trimmed
+                     water_start(fit), steps, colour_max, dark,
+                     balance_brightness=balance_brightness, noise_term=noise_term), trimmed
 
 
 def water_start(fit: WaterFit) -> dict[str, list[float]]:
@@ -779,7 +783,7 @@ def _fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start
         attn, bs, c_med = water_of_raw(raw, colour_max)
         loss = float(projected_loss(attn, bs, c_med, ranges, observed, ids, groups, weights))
     return WaterFit(attn.tolist(), bs.tolist(), c_med.tolist(), loss, int(len(ranges)), groups,
-                    weights)
+                    weights, unshared)
 
 
 NAMES = ("sigma_attn", "sigma_bs", "c_med")

@@ -54,7 +54,7 @@ def laplace_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Ten
     """
     theta = water_vector(fit)
     ranges, observed = ranges.double(), observed.double()
-    hessian = profile_hessian(theta, ranges, observed, ids, groups, fit.weights)
+    hessian = profile_hessian(theta, ranges, observed, ids, groups, fit.weights, fit.unshared)
     samples = max(1, 3 * groups)
     # information of the mean-squared loss: n / (2 sigma^2) * H, with sigma^2 = the loss; as a
     # sandwich H^-1 M H^-1 that is M = 2 sigma^2 / n * H
@@ -110,7 +110,10 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     the larger move is one more ``d^2``. With ``unseen_veiling`` and no open-water pixels, the
     veiling light the farthest surfaces do not yet show is one more
     (:func:`veiling_beyond_surfaces`). The interval is a prediction interval,
-    ``1.96 sqrt(var + max tau^2)``: the fit's error is taken to be one more draw of the error that makes parts of the data disagree.
+    ``1.96 sqrt(var + max tau^2)``: the fit's error is taken to be one more draw of the error
+    that makes parts of the data disagree. A fit made with the incidental term
+    (``fit.unshared``) is refitted with it: the parts with the fit's own variances, the other
+    groupings with theirs estimated anew; the scores and Hessian include it.
     With independent noise ``tau^2`` is an estimate of zero and the coverage stays near 95%
     (97% measured); on fits on trained models' own surfaces it goes from 61-72% (curvature)
     to 87-90% (``benchmarks/results/water_intervals.md``). An error every part shares alike
@@ -156,19 +159,22 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     """
     ranges, observed = ranges.double(), observed.double()
     theta = water_vector(fit)
-    statistical = cluster_variances(theta, ranges, observed, ids, groups, fit.weights)
+    statistical = cluster_variances(theta, ranges, observed, ids, groups, fit.weights,
+                                    fit.unshared)
     start = water_start(fit)
     balance = fit.weights is not None
+    unshared = fit.unshared     # the refits add the fit's incidental_term back as it did
 
     def refit(keep: Tensor) -> tuple[Tensor, Tensor] | None:
         part_ids, part_groups = renumbered_groups(ids[keep])
         if int(torch.isfinite(ranges[keep]).sum()) == 0 or part_groups < min_groups:
             return None
         part_fit = fit_water(ranges[keep], observed[keep], part_ids, part_groups, start, steps,
-                             colour_max, balance_brightness=balance)
-        return water_vector(part_fit), cluster_variances(water_vector(part_fit), ranges[keep],
-                                                   observed[keep], part_ids, part_groups,
-                                                   part_fit.weights)
+                             colour_max, balance_brightness=balance,
+                             unshared=None if unshared is None else unshared[keep])
+        return water_vector(part_fit), cluster_variances(
+            water_vector(part_fit), ranges[keep], observed[keep], part_ids, part_groups,
+            part_fit.weights, part_fit.unshared)
 
     everything = torch.ones_like(ranges, dtype=torch.bool)
     whole = (theta, statistical) if dark is None else refit(everything)
@@ -195,7 +201,8 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
         between["veiling_beyond_surfaces"] = veiling_beyond_surfaces(theta, ranges)
     if open_water_beyond is not None and bool(water.any()) and whole is not None:
         moves = [water_vector(fit_water(ranges, shifted, ids, groups, start, steps, colour_max,
-                                  balance_brightness=balance)) - whole[0]
+                                        balance_brightness=balance, unshared=unshared))
+                 - whole[0]
                  for shifted in surface_behind_open_water(theta, ranges, observed,
                                                           open_water_beyond)]
         between["open_water_surface"] = _finite_variance(torch.stack(moves).pow(2).amax(0))
@@ -205,11 +212,11 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
         noisier = torch.where(torch.isfinite(ranges), ranges * torch.exp(range_error * noise),
                               ranges)
         moved = fit_water(noisier, observed, ids, groups, start, steps, colour_max,
-                          balance_brightness=balance)
+                          balance_brightness=balance, unshared=unshared)
         between["range_error"] = _finite_variance((water_vector(moved) - whole[0]) ** 2)
     moves = [] if whole is None else [
-        water_vector(fit_water(*other, start, steps, colour_max, balance_brightness=balance))
-        - whole[0]
+        water_vector(fit_water(*other, start, steps, colour_max, balance_brightness=balance,
+                               noise_term=unshared is not None)) - whole[0]
         for other in regrouped if other[3] >= min_groups]
     if moves:
         between["grouping"] = _finite_variance(torch.stack(moves).pow(2).amax(0))
@@ -371,12 +378,13 @@ def data_splits(ranges: Tensor, ids: Tensor, groups: int) -> dict[str, tuple[Ten
 
 
 def profile_hessian(theta: Tensor, ranges: Tensor, observed: Tensor, ids: Tensor,
-                    groups: int, weights: Tensor | None = None) -> Tensor:
-    """(9, 9) Hessian of :func:`projected_loss` (with the group ``weights``, if given) at the
-    water ``theta`` (symmetrised)."""
+                    groups: int, weights: Tensor | None = None,
+                    unshared: Tensor | None = None) -> Tensor:
+    """(9, 9) Hessian of :func:`projected_loss` (with the group ``weights`` and the
+    incidental term's ``unshared`` variances, if given) at the water ``theta`` (symmetrised)."""
     def loss(params: Tensor) -> Tensor:
         return projected_loss(params[0:3], params[3:6], params[6:9], ranges, observed, ids,
-                              groups, weights)
+                              groups, weights, unshared)
 
     with torch.enable_grad():
         hessian = torch.autograd.functional.hessian(loss, theta)
@@ -384,25 +392,28 @@ def profile_hessian(theta: Tensor, ranges: Tensor, observed: Tensor, ids: Tensor
 
 
 def cluster_variances(theta: Tensor, ranges: Tensor, observed: Tensor, ids: Tensor,
-                      groups: int, weights: Tensor | None = None) -> Tensor:
+                      groups: int, weights: Tensor | None = None,
+                      unshared: Tensor | None = None) -> Tensor:
     """(9,) variances of the water fitted at ``theta``: the sandwich ``H^-1 M H^-1`` with the
     meat summed over clusters (see :func:`robust_halfwidths`): the voxel groups, and each
     open-water pixel (range inf) on its own -- rays of many views into open water share no
     surface, and as one cluster their score would be pinned to minus the others' by the fit's
-    own optimality; inf where not curved. ``weights``: the fit's group weights, if any."""
-    hessian = profile_hessian(theta, ranges, observed, ids, groups, weights)
+    own optimality; inf where not curved. ``weights``, ``unshared``: the fit's group weights
+    and incidental-term variances, if any."""
+    hessian = profile_hessian(theta, ranges, observed, ids, groups, weights, unshared)
     water = ~torch.isfinite(ranges)
     clusters = ids.clone()
     clusters[water] = groups + torch.arange(int(water.sum()), device=ids.device)
     clusters, count = renumbered_groups(clusters)
-    scores = group_scores(theta, ranges, observed, ids, groups, clusters, count, weights)
+    scores = group_scores(theta, ranges, observed, ids, groups, clusters, count, weights,
+                          unshared)
     meat = scores.T @ scores * (count / max(count - 1, 1))
     return sandwich_variances(hessian, meat)
 
 
 def group_scores(theta: Tensor, ranges: Tensor, observed: Tensor, ids: Tensor,
                  groups: int, clusters: Tensor | None = None, count: int = 0,
-                 weights: Tensor | None = None) -> Tensor:
+                 weights: Tensor | None = None, unshared: Tensor | None = None) -> Tensor:
     """Each group's share of the gradient of :func:`projected_loss` at the water ``theta``.
 
     With the clean colours at their optimum for ``theta``, the profile's gradient is the
@@ -414,6 +425,8 @@ def group_scores(theta: Tensor, ranges: Tensor, observed: Tensor, ids: Tensor,
         clusters, count: (N,) other units to sum the scores over, and their number
             (default: the groups).
         weights: (groups, 3) group weights of the loss, if any.
+        unshared: (N, 3) variances of the loss's incidental term, if any (its gradient in the
+            attenuation splits by group too).
 
     Returns:
         (groups or count, 9) scores; they sum to the gradient (zero at an interior minimum).
@@ -431,9 +444,26 @@ def group_scores(theta: Tensor, ranges: Tensor, observed: Tensor, ids: Tensor,
     if weights is not None:     # the residuals are weighted: so is their slope
         residual = residual * weights.sqrt()[ids]
     per_pixel = torch.cat([residual * d_attn, residual * d_bs, residual * d_c], dim=1) * scale
+    if unshared is not None:
+        per_pixel[:, 0:3] += incidental_gradient(attn, ranges, unshared, ids, groups,
+                                                 weights) / residual.numel()
     if clusters is None:
         clusters, count = ids, groups
     return residual.new_zeros(count, 9).index_add_(0, clusters, per_pixel)
+
+
+def incidental_gradient(sigma_attn: Tensor, ranges: Tensor, unshared: Tensor, ids: Tensor,
+                        groups: int, weights: Tensor | None = None) -> Tensor:
+    """(N, 3) each pixel's share of the gradient of :func:`water_fit.incidental_term` in
+    ``sigma_attn`` (the variances held fixed, as the fit holds them): a group's ``f'Sf / f'f``
+    with ``f_i^2 = exp(-2 sigma_attn z_i)`` has the derivative
+    ``-2 sum_i z_i f_i^2 (S_i - term) / f'f``, split over its pixels."""
+    z = ranges.double().clamp_max(1e6)[:, None]
+    f2 = torch.exp(-2.0 * sigma_attn * z)
+    den = unshared.new_zeros(groups, 3).index_add_(0, ids, f2).clamp_min(1e-300)
+    term = unshared.new_zeros(groups, 3).index_add_(0, ids, f2 * unshared) / den
+    share = -2.0 * z * f2 * (unshared - term[ids]) / den[ids]
+    return share if weights is None else share * weights[ids]
 
 
 def sandwich_variances(hessian: Tensor, meat: Tensor, isolate_flat: bool = True) -> Tensor:
