@@ -2,7 +2,7 @@
 
 A diagnostic, not a test. For workflow runs of simulated dives (``RUN`` = ``results/<dataset>``
 with ``simulate/``, ``poses/``, ``train/model.pt`` and ``evaluate/summary.json``), the refit of
-the training step (``water_fit.surface_data`` and ``fit_water``, no dark-pixel bound) is run on
+the training step (``water_surfaces.surface_data`` and ``fit_water``, no dark-pixel bound) is run on
 the same pixels of every training view, the model's surfaces at the simulator's true range, with
 the observed colour from:
 
@@ -40,7 +40,7 @@ from seathru.io.cameras import read_cameras  # noqa: E402
 from seathru.io.images import read_image  # noqa: E402
 from seathru.io.stored_views import source_cameras, stored_image_on_frame  # noqa: E402
 from seathru.io.training import read_frame  # noqa: E402
-from seathru.nerf import water_fit  # noqa: E402
+from seathru.nerf import water_fit, water_surfaces  # noqa: E402
 from seathru.nerf.rays import frame_rays  # noqa: E402
 from seathru.radiometry.deblur import deblurred, processing_blur  # noqa: E402
 
@@ -85,7 +85,7 @@ def refit(views, model, scale: float, truth: dict, source: str, blur_of) -> dict
     observed = torch.where(torch.isfinite(observed), observed, 0.0)
     open_water = ~torch.isfinite(true)
     diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
-    data = water_fit.surface_data(origins, directions, observed,
+    data = water_surfaces.surface_data(origins, directions, observed,
                                   torch.where(open_water, torch.nan, true / scale),
                                   (~open_water).double(), 0.005 * diagonal, 0.9,
                                   open_water_opacity=0.5, open_water=open_water)

@@ -5,7 +5,7 @@ with ``simulate/``, ``poses/``, ``train/model.pt`` and ``evaluate/summary.json``
 RAW files are ingested once per decoding (LibRaw demosaics, and 2x2 binning upsampled back), each
 decoded image is mapped onto the run's camera frames as the poses step maps the training images
 (``seathru.io.stored_views.stored_image_on_frame``), and the refit of the training step
-(``water_fit.surface_data`` and ``fit_water``, no dark-pixel bound) is run on the same pixels of
+(``water_surfaces.surface_data`` and ``fit_water``, no dark-pixel bound) is run on the same pixels of
 every training view: the model's surfaces, at the simulator's true range and at the model's
 depth. Everything but the observed colour is held, so what moves between rows is the decoding's.
 The simulator's noise-free image with water gives the reference row. Usage::
@@ -42,7 +42,7 @@ from seathru.io.images import read_image  # noqa: E402
 from seathru.io.model import load_model  # noqa: E402
 from seathru.io.stored_views import source_cameras, stored_image_on_frame  # noqa: E402
 from seathru.io.water import read_truth_water  # noqa: E402
-from seathru.nerf import water_fit  # noqa: E402
+from seathru.nerf import water_fit, water_surfaces  # noqa: E402
 from seathru.nerf.rays import frame_rays  # noqa: E402
 
 OUT = REPO / "benchmarks" / "results" / "refit_decoding.md"
@@ -185,7 +185,7 @@ def main() -> None:
             observed = torch.where(defined[:, None], observed, colours[args.decodings[0]]) \
                 if name == "truth" else observed
             for depth_name, (depth, opacity) in depths.items():
-                data = water_fit.surface_data(rays["origins"], rays["directions"], observed,
+                data = water_surfaces.surface_data(rays["origins"], rays["directions"], observed,
                                               depth, opacity, 0.005 * diagonal, 0.9,
                                               open_water_opacity=0.5, open_water=open_water)
                 fit = water_fit.fit_water(data.ranges, data.observed, data.ids, data.groups,

@@ -66,11 +66,11 @@ def dive_pixels(truth: Path, per_view: int, seed: int = 0):
 
 
 def refit_errors(pixels: dict, keep, truth: dict) -> dict[str, list[float]]:
-    from seathru.nerf import water_fit
+    from seathru.nerf import water_fit, water_surfaces
 
     water = ~torch.isfinite(pixels["ranges"])
     depth = torch.where(water, torch.nan, pixels["ranges"])
-    data = water_fit.surface_data(pixels["origins"][keep], pixels["directions"][keep],
+    data = water_surfaces.surface_data(pixels["origins"][keep], pixels["directions"][keep],
                                   pixels["rgb"][keep], depth[keep], (~water).double()[keep],
                                   0.02, 0.9, open_water_opacity=0.5, open_water=water[keep])
     fit = water_fit.fit_water(data.ranges, data.observed, data.ids, data.groups,

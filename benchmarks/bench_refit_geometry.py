@@ -22,7 +22,7 @@ from seathru.io.water import read_truth_water
 from seathru.io.evaluation import camera_centres, truth_on_frames
 from seathru.io.stored_views import source_cameras, stored_image_on_frame
 from seathru.eval import truth as truth_eval
-from seathru.nerf import water_fit
+from seathru.nerf import water_fit, water_surfaces
 from seathru.nerf.rays import frame_rays
 
 RUN = sys.argv[1]; PER_VIEW = int(sys.argv[2]); SEEDS = [int(s) for s in sys.argv[3].split(",")]
@@ -187,7 +187,7 @@ for spec in VARIANTS:
             key = torch.cat([torch.floor(pts / (VOXEL_M * per_m)), torch.floor(d / float(os.environ["DIRBIN"]))], 1).long()
             _, pids = torch.unique(key, dim=0, return_inverse=True)
             pids = torch.where(fin, pids, -1)
-        data = water_fit.surface_data(o, d, rgb, torch.where(ow, torch.nan, rr), (~ow).double(),
+        data = water_surfaces.surface_data(o, d, rgb, torch.where(ow, torch.nan, rr), (~ow).double(),
                                       VOXEL_M * per_m, 0.9, open_water_opacity=0.5, open_water=ow,
                                       point_ids=pids)
         fit = water_fit.fit_water(data.ranges, data.observed, data.ids, data.groups,

@@ -51,7 +51,8 @@ def measure(train: Path, trim: float) -> dict:
     from seathru.eval.truth import training_view_coverage
     from seathru.io.water import read_truth_water, read_water
     from seathru.nerf.rays import frame_rays
-    from seathru.nerf.water_fit import fit_surfaces, surface_data
+    from seathru.nerf.water_fit import fit_surfaces
+    from seathru.nerf.water_surfaces import surface_data
 
     sim = train.parent
     model, cameras, frames, images, _, water_masks, in_view = trained_dive(sim, train)

@@ -56,14 +56,14 @@ OPEN_WATER_PIXELS = 2000
 
 def exact_groups(px: dict) -> dict:
     """The surface pixels seen over a spread of ranges, grouped by voxel, with their range bin."""
-    import seathru.nerf.water_fit as water_fit
+    import seathru.nerf.water_surfaces as water_surfaces
 
     surface = np.isfinite(px["range"])
     points = px["origins"][surface] + px["dirs"][surface] * px["range"][surface, None]
     ranges = px["range"][surface]
-    ids, groups = water_fit.voxel_groups(torch.from_numpy(points), VOXEL)
-    keep = water_fit.ranged_groups(torch.from_numpy(ranges), ids, groups).numpy()
-    ids, groups = water_fit.voxel_groups(torch.from_numpy(points[keep]), VOXEL)
+    ids, groups = water_surfaces.voxel_groups(torch.from_numpy(points), VOXEL)
+    keep = water_surfaces.ranged_groups(torch.from_numpy(ranges), ids, groups).numpy()
+    ids, groups = water_surfaces.voxel_groups(torch.from_numpy(points[keep]), VOXEL)
     ranges = ranges[keep]
     edges = np.quantile(ranges, np.linspace(0.0, 1.0, BINS + 1))
     return {"ranges": ranges, "image": px["image"][surface][keep],

@@ -78,7 +78,8 @@ def errors(fit, truth) -> str:
 
 
 def by_footprint(water: str) -> list[str]:
-    from seathru.nerf.water_fit import fit_surfaces, surface_data
+    from seathru.nerf.water_fit import fit_surfaces
+    from seathru.nerf.water_surfaces import surface_data
 
     rows = []
     for supersample in (1, 2):
@@ -105,11 +106,12 @@ def by_footprint(water: str) -> list[str]:
 
 def by_ray_ranges(water: str) -> list[str]:
     import seathru.nerf.water_fit as water_fit
+    import seathru.nerf.water_surfaces as water_surfaces
 
     truth, px = survey_rays(water, 2)
     surface = np.isfinite(px["range"])
     points = px["origins"][surface] + px["dirs"][surface] * px["range"][surface, None]
-    ids, groups = water_fit.voxel_groups(torch.from_numpy(points), VOXEL)
+    ids, groups = water_surfaces.voxel_groups(torch.from_numpy(points), VOXEL)
     veiling = torch.tensor(truth.c_med, dtype=torch.float64).repeat(OPEN_WATER_PIXELS, 1)
     observed = torch.cat([torch.from_numpy(px["image"][surface]), veiling])
     ids = torch.cat([ids, torch.full((OPEN_WATER_PIXELS,), groups)])

@@ -4,7 +4,7 @@ A diagnostic, not a test. For trained runs of a simulated dive (each ``RUN/train
 ``RUN/evaluate/summary.json`` for the metric scale), training pixels are rendered with the model
 and given two ranges: the model's median depth and the simulator's true range of the same pixel
 (the truth camera's pixel that sees the same direction). The refit of the training step
-(``water_fit.surface_data`` and ``fit_water``) is run on each, without the dark-pixel bound,
+(``water_surfaces.surface_data`` and ``fit_water``) is run on each, without the dark-pixel bound,
 with the bound from every surface pixel (what ``surface_data`` takes without open water) and with
 the bound from the pixels of surfaces several views place alike (what it takes with open water).
 Open water here is the pixels with no true surface (the training step takes it from the
@@ -38,7 +38,7 @@ from seathru.io.cameras import read_cameras  # noqa: E402
 from seathru.io.images import read_image  # noqa: E402
 from seathru.io.model import load_model  # noqa: E402
 from seathru.io.water import read_truth_water  # noqa: E402
-from seathru.nerf import water_fit  # noqa: E402
+from seathru.nerf import water_fit, water_surfaces  # noqa: E402
 from seathru.nerf.rays import frame_rays  # noqa: E402
 
 OUT = REPO / "benchmarks" / "results" / "refit_true_depth.md"
@@ -82,7 +82,7 @@ def rays_of_run(model, cameras, truth: Path, per_view: int, seed: int):
 
 def bound_from_every_pixel(rays, depth, opacity, open_water, voxel: float):
     """The bound ``surface_data`` takes where no open water is used: from every surface pixel."""
-    return water_fit.surface_data(rays["origins"], rays["directions"], rays["rgb"], depth,
+    return water_surfaces.surface_data(rays["origins"], rays["directions"], rays["rgb"], depth,
                                   opacity, voxel, 0.9, open_water_opacity=0.0,
                                   open_water=open_water).dark
 
@@ -95,7 +95,7 @@ def refits(rays, scale: float, model, start: dict) -> dict:
     results = {}
     for name, depth, opacity in (("model", rays["model"], rays["opacity"]),
                                  ("true", true_depth, (~open_water).double())):
-        data = water_fit.surface_data(rays["origins"], rays["directions"], rays["rgb"], depth,
+        data = water_surfaces.surface_data(rays["origins"], rays["directions"], rays["rgb"], depth,
                                       opacity, 0.005 * diagonal, 0.9, open_water_opacity=0.5,
                                       open_water=open_water)
         args = (data.ranges, data.observed, data.ids, data.groups, start, 300,
@@ -136,7 +136,7 @@ def exact_depth_fits(truth: Path, per_view: int, noise_levels=(0.0, 0.05)) -> li
     start = {"sigma_attn": 0.2, "sigma_bs": 0.2, "c_med": 0.2}
 
     def data_for(depth):
-        return water_fit.surface_data(origins, directions, observed, depth,
+        return water_surfaces.surface_data(origins, directions, observed, depth,
                                       (~open_water).double(), 0.02, 0.9,
                                       open_water_opacity=0.5, open_water=open_water)
 
@@ -167,7 +167,7 @@ def exact_depth_fits(truth: Path, per_view: int, noise_levels=(0.0, 0.05)) -> li
                 regressor = torch.where(torch.isfinite(exact.ranges),
                                         exact.ranges * torch.exp(level * pixel_noise),
                                         exact.ranges)
-                exact_groups = water_fit.SurfaceData(regressor, exact.observed, exact.ids,
+                exact_groups = water_surfaces.SurfaceData(regressor, exact.observed, exact.ids,
                                                      exact.groups, exact.dark)
                 rows.append(row(level, "on the true points, no bound", exact_groups, False))
     return rows

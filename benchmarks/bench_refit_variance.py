@@ -51,7 +51,7 @@ from seathru.io.images import read_image  # noqa: E402
 from seathru.io.tracks import training_depth_observations  # noqa: E402
 from seathru.io.training import load_checkpoint, read_training_inputs  # noqa: E402
 from seathru.io.water import read_truth_water  # noqa: E402
-from seathru.nerf import water_fit  # noqa: E402
+from seathru.nerf import water_fit, water_surfaces  # noqa: E402
 from seathru.nerf.config import TrainConfig  # noqa: E402
 from seathru.nerf.prepare import prepare_run, seed_everything  # noqa: E402
 from seathru.nerf.rays import frame_rays  # noqa: E402
@@ -119,7 +119,7 @@ def variance_weights(water: dict, ranges, observed, ids, groups, weights, bins: 
 
 
 def variance_weighted_fit(data, start: dict, rounds: int = 3):
-    """The variance-weighted water of surface ``data`` (``water_fit.SurfaceData``) and its
+    """The variance-weighted water of surface ``data`` (``water_surfaces.SurfaceData``) and its
     noise model."""
     ranges, observed = data.ranges.double(), data.observed.double()
     weights, water, noise = torch.ones_like(observed), start, []
@@ -150,7 +150,7 @@ def exact_rows(truth_dir: Path, per_view: int, voxel: float) -> tuple[list[str],
         columns["rgb"].append(torch.from_numpy(image[pick].astype(np.float64)))
     c = {k: torch.cat(v) for k, v in columns.items()}
     water = ~torch.isfinite(c["ranges"])
-    data = water_fit.surface_data(c["origins"], c["directions"], c["rgb"],
+    data = water_surfaces.surface_data(c["origins"], c["directions"], c["rgb"],
                                   torch.where(water, torch.nan, c["ranges"]), (~water).double(),
                                   voxel, 0.9, open_water_opacity=0.5, open_water=water)
     start = {k: [0.2] * 3 for k in KEYS}

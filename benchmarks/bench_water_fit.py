@@ -69,7 +69,8 @@ def main() -> None:
     true_water = json.loads((truth / "water.json").read_text())
     points, z, observed = load_pixels(truth, args.per_view, 0)
     z, observed = z.double(), observed.double()
-    from seathru.nerf.water_fit import fit_water, projected_loss, voxel_groups
+    from seathru.nerf.water_fit import fit_water, projected_loss
+    from seathru.nerf.water_surfaces import voxel_groups
 
     ids, groups = voxel_groups(points, args.voxel)
     shared = float((torch.bincount(ids)[ids] > 1).double().mean())

@@ -154,7 +154,7 @@ def model_surfaces(sim: Path, train: Path, regroup: bool = False):
     from seathru.io.water import read_truth_water, read_water
     from seathru.nerf.rays import RayDataset
     from seathru.nerf.water_refit import below_horizon, refit_open_water_opacity
-    from seathru.nerf.water_fit import surface_data
+    from seathru.nerf.water_surfaces import surface_data
 
     model, cameras, frames, images, masks, water_masks, in_view = trained_dive(sim, train)
     config = model.config

@@ -21,8 +21,8 @@ from typing import Sequence
 
 import torch
 
-from seathru.nerf.water_fit import (SurfaceData, WaterFit, correspondence_rays, fit_surfaces,
-                                    surface_data)
+from seathru.nerf.water_fit import WaterFit, fit_surfaces
+from seathru.nerf.water_surfaces import SurfaceData, correspondence_rays, surface_data
 from seathru.nerf.water_uncertainty import (far_surface_range, interval_determined,
                                             laplace_halfwidths, robust_halfwidths)
 
@@ -226,7 +226,7 @@ def below_horizon(directions: torch.Tensor, up, margin_deg: float) -> torch.Tens
 
 def refit_open_water_opacity(medium, from_images: bool, progress: float) -> float:
     """The ``open_water_opacity`` a water fit at ``progress`` passes to
-    ``water_fit.surface_data`` (0: no open water): the photographs' open water needs no
+    ``water_surfaces.surface_data`` (0: no open water): the photographs' open water needs no
     converged model; the model's empty rays count only from ``medium.open_water_from``."""
     return medium.open_water_opacity if from_images or progress >= medium.open_water_from \
         else 0.0

@@ -16,9 +16,9 @@ import torch
 from torch import Tensor
 
 from seathru.nerf.water_fit import (NAMES, WaterFit, fit_water, projected_loss,
-                                    projected_residuals, renumbered_groups, water_start,
-                                    water_vector)
+                                    projected_residuals, water_start, water_vector)
 from seathru.nerf.water_interval import interval_halfwidth
+from seathru.nerf.water_surfaces import renumbered_groups
 
 
 @dataclass
