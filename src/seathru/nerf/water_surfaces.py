@@ -65,7 +65,7 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
             ``min_above_horizon`` of the open-water pixels look above the horizon, only those
             are used; otherwise all are, and the data say so
             (``SurfaceData.open_water_below_horizon``: the intervals then allow for a surface
-            behind them, :func:`robust_halfwidths`).
+            behind them, :func:`~seathru.nerf.water_uncertainty.robust_halfwidths`).
         min_above_horizon: see ``below_horizon``.
         point_ids: (R,) long or None: rays with the same id look at the same surface point
             (:func:`correspondence_rays`); given, they are grouped by it instead of by voxel
@@ -232,7 +232,8 @@ def dark_pixels(ranges: Tensor, observed: Tensor, bins: int = 10,
     the darkest pixels of a range bin are at least the backscatter at the bin's nearest range:
     the ``quantile`` of each channel per bin bounds ``B`` there from above (nearly equal to it
     where some surfaces are black or shadowed). Pixel noise puts the quantile of noisy pixels
-    below that; :func:`fit_water` raises the bound by the noise it measures.
+    below that; :func:`~seathru.nerf.water_fit.fit_water` raises the bound by the noise it
+    measures.
 
     Args:
         ranges: (N,) finite ranges; observed: (N, 3) pixels.
