@@ -116,7 +116,8 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     groupings with theirs estimated anew; the scores and Hessian include it.
     With independent noise ``tau^2`` is an estimate of zero and the coverage stays near 95%
     (97% measured); on fits on trained models' own surfaces it goes from 61-72% (curvature)
-    to 87-90% (``benchmarks/results/water_intervals.md``). An error every part shares alike
+    to 87-90% (``benchmarks/results/water_intervals.md``; 86% around the trained values of the
+    24 models of ``water_intervals_s44.md``). An error every part shares alike
     (a smooth depth distortion over the whole scene, a wrong scale) is out of its reach, as
     of any measure taken from the same images.
 
