@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -97,6 +99,9 @@ def test_robust_refits_add_the_fits_incidental_term_back_as_it_did():
     spread = robust_halfwidths(fit, *data, dark=dark)
     theta = water_vector(fit).numpy()
     assert np.all(np.array(spread.splits["dark_bound"]) < 0.01 * theta)
+    parts_plain = robust_halfwidths(replace(fit, unshared=None), *data, dark=dark)
+    move = np.array(parts_plain.splits["dark_bound"][:3]) / 1.96 / theta[:3]
+    assert np.all(move > 0.08), move      # the term's own move in attenuation (10-17%)
     assert np.all(np.isfinite(spread.halfwidth["sigma_attn"]))
 
 

@@ -95,11 +95,29 @@ def incidental_term(sigma_attn: Tensor, ranges: Tensor, unshared: Tensor, ids: T
         unshared = unshared_variance(fit, z, rgb, ids, groups)
         loss = projected_loss(attn, bs, c_med, z, rgb, ids, groups, weights, unshared)
     """
-    f2 = torch.exp(-2.0 * sigma_attn * ranges.clamp_max(1e6)[:, None])
-    num = unshared.new_zeros(groups, 3).index_add_(0, ids, f2 * unshared)
-    den = unshared.new_zeros(groups, 3).index_add_(0, ids, f2)
-    term = num / den.clamp_min(1e-300)
+    term = _incidental_parts(sigma_attn, ranges, unshared, ids, groups)[2]
     return (term if weights is None else term * weights).sum()
+
+
+def incidental_gradient(sigma_attn: Tensor, ranges: Tensor, unshared: Tensor, ids: Tensor,
+                        groups: int, weights: Tensor | None = None) -> Tensor:
+    """(N, 3) each pixel's share of the gradient of :func:`incidental_term` in ``sigma_attn``
+    (the variances held fixed, as the fit holds them): a group's ``f'Sf / f'f`` with
+    ``f_i^2 = exp(-2 sigma_attn z_i)`` has the derivative ``-2 sum_i z_i f_i^2 (S_i - term) /
+    f'f``, split over its pixels."""
+    f2, den, term = _incidental_parts(sigma_attn, ranges, unshared, ids, groups)
+    share = -2.0 * ranges.double().clamp_max(1e6)[:, None] * f2 * (unshared - term[ids]) \
+        / den[ids]
+    return share if weights is None else share * weights[ids]
+
+
+def _incidental_parts(sigma_attn: Tensor, ranges: Tensor, unshared: Tensor, ids: Tensor,
+                      groups: int) -> tuple[Tensor, Tensor, Tensor]:
+    """(N, 3) squared transmissions ``f^2``, (groups, 3) their sums ``f'f`` (clamped above 0)
+    and each group's ``f'Sf / f'f``."""
+    f2 = torch.exp(-2.0 * sigma_attn * ranges.clamp_max(1e6)[:, None])
+    den = unshared.new_zeros(groups, 3).index_add_(0, ids, f2).clamp_min(1e-300)
+    return f2, den, unshared.new_zeros(groups, 3).index_add_(0, ids, f2 * unshared) / den
 
 
 def unshared_variance(fit: "WaterFit", ranges: Tensor, observed: Tensor, ids: Tensor,

@@ -15,8 +15,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from seathru.nerf.water_fit import (NAMES, WaterFit, fit_water, projected_loss,
-                                    projected_residuals, water_start, water_vector)
+from seathru.nerf.water_fit import (NAMES, WaterFit, fit_water, incidental_gradient,
+                                    projected_loss, projected_residuals, water_start,
+                                    water_vector)
 from seathru.nerf.water_interval import interval_halfwidth
 from seathru.nerf.water_surfaces import renumbered_groups
 
@@ -451,20 +452,6 @@ def group_scores(theta: Tensor, ranges: Tensor, observed: Tensor, ids: Tensor,
     if clusters is None:
         clusters, count = ids, groups
     return residual.new_zeros(count, 9).index_add_(0, clusters, per_pixel)
-
-
-def incidental_gradient(sigma_attn: Tensor, ranges: Tensor, unshared: Tensor, ids: Tensor,
-                        groups: int, weights: Tensor | None = None) -> Tensor:
-    """(N, 3) each pixel's share of the gradient of :func:`water_fit.incidental_term` in
-    ``sigma_attn`` (the variances held fixed, as the fit holds them): a group's ``f'Sf / f'f``
-    with ``f_i^2 = exp(-2 sigma_attn z_i)`` has the derivative
-    ``-2 sum_i z_i f_i^2 (S_i - term) / f'f``, split over its pixels."""
-    z = ranges.double().clamp_max(1e6)[:, None]
-    f2 = torch.exp(-2.0 * sigma_attn * z)
-    den = unshared.new_zeros(groups, 3).index_add_(0, ids, f2).clamp_min(1e-300)
-    term = unshared.new_zeros(groups, 3).index_add_(0, ids, f2 * unshared) / den
-    share = -2.0 * z * f2 * (unshared - term[ids]) / den[ids]
-    return share if weights is None else share * weights[ids]
 
 
 def sandwich_variances(hessian: Tensor, meat: Tensor, isolate_flat: bool = True) -> Tensor:
