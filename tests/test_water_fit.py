@@ -58,6 +58,37 @@ def test_fit_recovers_the_water_from_surfaces_seen_over_a_range_of_distances(sta
     assert fit.pixels == len(ranges) and fit.groups == groups
 
 
+def test_a_fit_with_fixed_parameters_profiles_the_loss_along_them():
+    """``fixed`` keeps those values at their start exactly while the rest is fitted: at the true
+    veiling light the noise-free fit returns the true water; at a wrong one the other values
+    move to the best fit there (a lower loss than where they started, a higher one than the
+    free fit's); every name fixed, or an unknown one, is refused."""
+    ranges, observed, ids, groups = _observations(np.random.default_rng(3), near=1.0, far=6.0)
+    held = fit_water(ranges, observed, ids, groups, {**START, "c_med": TRUE["c_med"]},
+                     balance_brightness=False, fixed=("c_med",))
+    assert held.c_med == TRUE["c_med"]
+    for key in ("sigma_attn", "sigma_bs"):
+        assert getattr(held, key) == pytest.approx(TRUE[key], rel=1e-4)
+    wrong = [0.8 * c for c in TRUE["c_med"]]
+    start = {**START, "c_med": wrong}
+    slid = fit_water(ranges, observed, ids, groups, start, balance_brightness=False,
+                     fixed=("c_med",))
+    assert slid.c_med == pytest.approx(wrong, rel=1e-15)
+
+    def loss(water) -> float:
+        return float(projected_loss(*(torch.tensor(w, dtype=torch.float64) for w in (
+            water["sigma_attn"], water["sigma_bs"], water["c_med"])), ranges.double(),
+            observed.double(), ids, groups))
+
+    at_start = loss({"sigma_attn": [START["sigma_attn"]] * 3,
+                     "sigma_bs": [START["sigma_bs"]] * 3, "c_med": wrong})
+    assert 1e-12 < slid.loss < 0.5 * at_start
+    assert max(abs(a - t) for a, t in zip(slid.sigma_bs, TRUE["sigma_bs"])) > 0.01
+    for names in (("c_med", "sigma_attn", "sigma_bs"), ("veiling",)):
+        with pytest.raises(ValueError, match="fixed"):
+            fit_water(ranges, observed, ids, groups, START, fixed=names)
+
+
 def test_fit_converges_alike_whatever_the_brightness_of_the_images(monkeypatch):
     # a dim exposure scales the loss by its square: the fit must end at the same water, in
     # about as many loss evaluations (absolute tolerances used to run dim fits to the limit)

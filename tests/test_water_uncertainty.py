@@ -13,7 +13,7 @@ from seathru.nerf.water_fit import (WaterFit, fit_water, projected_loss, water_s
 from seathru.nerf.water_uncertainty import (cluster_variances, far_surface_range, group_scores,
                                             interval_determined, laplace_halfwidths,
                                             robust_halfwidths, surface_behind_open_water,
-                                            veiling_beyond_surfaces)
+                                            veiling_beyond_surfaces, veiling_slide)
 from tests.test_water_fit import (KEYS, START, TRUE, _fit_and_spread, _observations,
                                    _textured)
 
@@ -353,11 +353,13 @@ def test_the_veiling_light_beyond_the_surfaces_moves_along_the_backscatter_they_
     assert torch.isinf(alike[3:6]).all() and torch.isfinite(alike[6:9]).all()
 
 
-def test_without_open_water_the_unseen_veiling_light_widens_the_backscatter_intervals():
+def test_without_open_water_the_unseen_veiling_light_widens_the_water_intervals():
     """A transect: surfaces at 1.5-4 units with the far ones placed short (the model's range
     bent by (z / median)^-0.1). The fit slides along the backscatter curve (c_med 3-9% low,
-    sigma_bs 21-43% high) and the data-split intervals miss it; the allowance for the veiling
-    light the surfaces do not show holds it, and leaves sigma_attn alone."""
+    sigma_bs 21-43% high, green and blue sigma_attn 11% high with it) and the data-split
+    intervals miss it; the allowance for the veiling light the surfaces do not show holds
+    it: the attenuation's part is its move in refits with c_med held at either end of the
+    slide (``veiling_slide``)."""
     rng = np.random.default_rng(0)
     ranges, observed, ids, groups = _observations(rng, groups=200, per_group=8, near=1.5,
                                                   far=4.0, noise=0.005)
@@ -374,8 +376,20 @@ def test_without_open_water_the_unseen_veiling_light_widens_the_backscatter_inte
 
     assert misses(plain, "sigma_bs") + misses(plain, "c_med") >= 4
     assert misses(allowed, "sigma_bs") + misses(allowed, "c_med") == 0
-    assert allowed.halfwidth["sigma_attn"] == plain.halfwidth["sigma_attn"]
     assert not any(allowed.determined["sigma_bs"])
+    # the attenuation slides too: green and blue held only with the refits at the ends
+    held = [abs(v - t) <= h for v, h, t in zip(fit.sigma_attn, allowed.halfwidth["sigma_attn"],
+                                                TRUE["sigma_attn"])]
+    assert held[1:] == [True, True]
+    assert misses(plain, "sigma_attn") == 3
+    theta = torch.tensor(fit.sigma_attn + fit.sigma_bs + fit.c_med, dtype=torch.float64)
+    ends = [fit_water(ranges, observed, ids, groups, {
+        "sigma_attn": fit.sigma_attn, "sigma_bs": end[3:6].tolist(),
+        "c_med": end[6:9].tolist()}, 100, fixed=("c_med",)) for end in veiling_slide(
+        theta, ranges)]
+    moves = allowed.splits["veiling_beyond_surfaces"][0:3]
+    assert moves == pytest.approx([1.96 * max(abs(e.sigma_attn[c] - a) for e in ends)
+                                   for c, a in enumerate(fit.sigma_attn)], rel=1e-3)
     # surfaces out to where the backscatter has saturated: hardly any allowance
     long = _observations(rng, groups=200, per_group=8, near=1.5, far=30.0, noise=0.005)
     fit_long = fit_water(*long, START)

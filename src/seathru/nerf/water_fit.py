@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from statistics import NormalDist
+from typing import Sequence
 
 import torch
 import torch.nn.functional as F
@@ -246,7 +247,8 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
               steps: int = 300, colour_max: float = 1.5,
               dark: tuple[Tensor, Tensor] | None = None, dark_weight: float = 10.0,
               balance_brightness: bool = True, brightness_floor: float = 1.0,
-              noise_term: bool = False, unshared: Tensor | None = None) -> WaterFit:
+              noise_term: bool = False, unshared: Tensor | None = None,
+              fixed: Sequence[str] = ()) -> WaterFit:
     """Fit the 9 water parameters by L-BFGS on :func:`projected_loss`, in float64.
 
     Nine smooth parameters and a cheap exact loss: a quasi-Newton method with a line search
@@ -271,6 +273,8 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
             without it and once more at the fit with it).
         unshared: (N, 3) variances for that term, given (as another fit's ``unshared``, to
             refit part of its data alike) instead of estimated; implies the term.
+        fixed: names (``sigma_attn``, ``sigma_bs``, ``c_med``) kept at their ``start``
+            values while the rest is fitted: a profile of the loss along them.
 
     Returns:
         the fitted water, its loss and the group weights it used.
@@ -280,27 +284,31 @@ def fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start:
         ids, groups = water_surfaces.voxel_groups(points, 0.02)
         fit = fit_water(z, rgb, ids, groups, {"sigma_attn": 0.2, "sigma_bs": 0.2, "c_med": 0.2})
     """
+    unknown = set(fixed) - set(NAMES)
+    if unknown or set(fixed) == set(NAMES):
+        raise ValueError(f"fixed: {list(fixed)}: name some of the water parameters {NAMES}, "
+                         "not all")
     weights = None
-    free = _fit_water(ranges, observed, ids, groups, start, steps, colour_max)
+    free = _fit_water(ranges, observed, ids, groups, start, steps, colour_max, fixed=fixed)
     if balance_brightness:
         for _ in range(2):
             weights = _weights_at(free, ranges, observed, ids, groups, brightness_floor)
             free = _fit_water(ranges, observed, ids, groups, water_start(free), steps, colour_max,
-                              weights=weights)
+                              weights=weights, fixed=fixed)
     if unshared is not None:
         free = _fit_water(ranges, observed, ids, groups, water_start(free), steps, colour_max,
-                          weights=weights, unshared=unshared)
+                          weights=weights, unshared=unshared, fixed=fixed)
     elif noise_term:
         for _ in range(2):
             unshared = unshared_variance(free, ranges, observed, ids, groups)
             free = _fit_water(ranges, observed, ids, groups, water_start(free), steps, colour_max,
-                              weights=weights, unshared=unshared)
+                              weights=weights, unshared=unshared, fixed=fixed)
     if dark is None:
         return free
     allowance = noise_allowance(free, ranges, observed, ids, groups)
     dark = (dark[0], dark[1].to(allowance) + allowance)
     return _fit_water(ranges, observed, ids, groups, water_start(free), steps, colour_max, dark,
-                      dark_weight, weights, unshared)
+                      dark_weight, weights, unshared, fixed)
 
 
 def residual_outliers(fit: WaterFit, data: SurfaceData, threshold: float) -> Tensor:
@@ -407,14 +415,16 @@ def water_raw(start: dict, colour_max: float, device=None) -> Tensor:
     """(9,) float64 unconstrained parameters of the water ``start`` (values per channel or one
     for all): softplus for the two coefficients, a logistic in (0, colour_max) for ``c_med``;
     :func:`water_of_raw` inverts it."""
-    def triple(value) -> list[float]:
-        return [float(value)] * 3 if isinstance(value, (int, float)) else [float(v) for v in value]
-
-    colour = [min(max(c / colour_max, 1e-4), 1 - 1e-4) for c in triple(start["c_med"])]
-    return torch.tensor([_inverse_softplus(v) for v in triple(start["sigma_attn"])]
-                        + [_inverse_softplus(v) for v in triple(start["sigma_bs"])]
+    colour = [min(max(c / colour_max, 1e-4), 1 - 1e-4) for c in _triple(start["c_med"])]
+    return torch.tensor([_inverse_softplus(v) for v in _triple(start["sigma_attn"])]
+                        + [_inverse_softplus(v) for v in _triple(start["sigma_bs"])]
                         + [math.log(c / (1 - c)) for c in colour],
                         dtype=torch.float64, device=device, requires_grad=True)
+
+
+def _triple(value) -> list[float]:
+    """A start value per channel (one number: the same for all three)."""
+    return [float(value)] * 3 if isinstance(value, (int, float)) else [float(v) for v in value]
 
 
 def water_of_raw(raw: Tensor, colour_max: float) -> tuple[Tensor, Tensor, Tensor]:
@@ -453,16 +463,24 @@ def minimise_relative(raw: Tensor, objective, steps: int,
 def _fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start: dict,
                steps: int, colour_max: float, dark: tuple[Tensor, Tensor] | None = None,
                dark_weight: float = 10.0, weights: Tensor | None = None,
-               unshared: Tensor | None = None) -> WaterFit:
-    """One L-BFGS fit of :func:`fit_water` with fixed group ``weights`` (or none) and
-    :func:`incidental_term` variances ``unshared`` (or none)."""
+               unshared: Tensor | None = None, fixed: Sequence[str] = ()) -> WaterFit:
+    """One L-BFGS fit of :func:`fit_water` with given group ``weights`` (or none),
+    :func:`incidental_term` variances ``unshared`` (or none) and the ``fixed`` parameters at
+    their ``start`` values (their raw values then take no gradient and stay put)."""
     raw = water_raw(start, colour_max, ranges.device)
     ranges, observed = ranges.double(), observed.double()
     if dark is not None:
         dark = (dark[0].double().to(ranges.device), dark[1].double().to(ranges.device))
+    held = {name: torch.tensor(_triple(start[name]), dtype=torch.float64, device=ranges.device)
+            for name in fixed}
+
+    def water() -> tuple[Tensor, Tensor, Tensor]:
+        values = dict(zip(NAMES, water_of_raw(raw, colour_max)))
+        values.update(held)
+        return values["sigma_attn"], values["sigma_bs"], values["c_med"]
 
     def objective() -> Tensor:
-        attn, bs, c_med = water_of_raw(raw, colour_max)
+        attn, bs, c_med = water()
         loss = projected_loss(attn, bs, c_med, ranges, observed, ids, groups, weights, unshared)
         if dark is not None:
             loss = loss + dark_weight * dark_excess(bs, c_med, dark)
@@ -470,7 +488,7 @@ def _fit_water(ranges: Tensor, observed: Tensor, ids: Tensor, groups: int, start
 
     minimise_relative(raw, objective, steps)
     with torch.no_grad():
-        attn, bs, c_med = water_of_raw(raw, colour_max)
+        attn, bs, c_med = water()
         loss = float(projected_loss(attn, bs, c_med, ranges, observed, ids, groups, weights))
     return WaterFit(attn.tolist(), bs.tolist(), c_med.tolist(), loss, int(len(ranges)), groups,
                     weights, unshared)

@@ -200,7 +200,17 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     if dark is not None and whole is not None:
         between["dark_bound"] = (whole[0] - theta) ** 2
     if unseen_veiling and not bool(water.any()) and bool(torch.isfinite(ranges).any()):
-        between["veiling_beyond_surfaces"] = veiling_beyond_surfaces(theta, ranges)
+        moves = veiling_beyond_surfaces(theta, ranges)
+        if whole is not None:
+            # the attenuation slides with the veiling light: refitted at each end of its move
+            slid = [water_vector(fit_water(ranges, observed, ids, groups, {
+                "sigma_attn": start["sigma_attn"], "sigma_bs": end[3:6].tolist(),
+                "c_med": end[6:9].clamp(1e-6, colour_max).tolist()}, steps, colour_max,
+                balance_brightness=balance, unshared=unshared, fixed=("c_med",))) - whole[0]
+                    for end in veiling_slide(theta, ranges) if bool(torch.isfinite(end).all())]
+            if slid:
+                moves = torch.maximum(moves, _finite_variance(torch.stack(slid).pow(2).amax(0)))
+        between["veiling_beyond_surfaces"] = moves
     if open_water_beyond is not None and bool(water.any()) and whole is not None:
         moves = [water_vector(fit_water(ranges, shifted, ids, groups, start, steps, colour_max,
                                         balance_brightness=balance, unshared=unshared))
@@ -235,7 +245,8 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
 
 def veiling_beyond_surfaces(theta: Tensor, ranges: Tensor, quantile: float = 0.9) -> Tensor:
     """Squared moves (9,) of ``sigma_bs`` and ``c_med`` allowed for where no open water is in
-    view: the veiling light is then seen only through the surfaces' backscatter,
+    view (to the ends of :func:`veiling_slide`): the veiling light is then seen only through
+    the surfaces' backscatter,
     ``c_med (1 - exp(-sigma_bs z))``, up to the farthest surface, and the part those surfaces
     do not yet show, ``c_med exp(-sigma_bs z_far)``, rests on the curvature of that curve
     over the ranges in view, which a NeRF's depth and colour errors bend: the fit slides along
@@ -251,13 +262,28 @@ def veiling_beyond_surfaces(theta: Tensor, ranges: Tensor, quantile: float = 0.9
         quantile: which range counts as the farthest surfaces' (:func:`far_surface_range`).
 
     Returns:
-        (9,) squared moves: zero for ``sigma_attn``, inf where unbounded.
+        (9,) squared moves: zero for ``sigma_attn`` (:func:`robust_halfwidths` refits it at
+        each end), inf where unbounded.
 
     Example::
 
         moves = veiling_beyond_surfaces(water_vector(fit), z)
         halfwidth_c_med = 1.96 * moves[6:9].sqrt()   # the allowance alone
     """
+    theta = theta.double()
+    moves = torch.stack(veiling_slide(theta, ranges, quantile)).sub(theta).pow(2).amax(0)
+    moves[0:3] = 0.0
+    return torch.nan_to_num(moves, nan=math.inf, posinf=math.inf)
+
+
+def veiling_slide(theta: Tensor, ranges: Tensor, quantile: float = 0.9
+                  ) -> tuple[Tensor, Tensor]:
+    """The two ends (9,) of the water's slide along the backscatter the surfaces show when
+    no open water is in view (:func:`veiling_beyond_surfaces`): the veiling light down by the
+    part ``c_med exp(-sigma_bs z_far)`` the farthest surfaces do not show, with the
+    ``sigma_bs`` that keeps the backscatter at the median range; and up by as much, with the
+    lower ``sigma_bs``. ``sigma_attn`` as in ``theta``; non-finite where the ranges bound
+    nothing (all alike)."""
     theta = theta.double()
     far = far_surface_range(ranges, quantile)
     middle = float(ranges[torch.isfinite(ranges)].double().median())
@@ -271,10 +297,8 @@ def veiling_beyond_surfaces(theta: Tensor, ranges: Tensor, quantile: float = 0.9
     diluted = -torch.expm1(-bs * middle) / (1.0 + torch.exp(-bs * far))
     high = -torch.log1p(-saturated) / middle
     low = -torch.log1p(-diluted) / middle
-    moves = torch.zeros_like(theta)
-    moves[3:6] = torch.maximum(high - bs, bs - low) ** 2
-    moves[6:9] = unseen ** 2
-    return torch.nan_to_num(moves, nan=math.inf, posinf=math.inf)
+    return (torch.cat([theta[0:3], high, c_med - unseen]),
+            torch.cat([theta[0:3], low, c_med + unseen]))
 
 
 def far_surface_range(ranges: Tensor, quantile: float = 0.9) -> float:
