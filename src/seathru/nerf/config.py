@@ -159,7 +159,8 @@ class MediumConfig:
     interval_unseen_veiling: bool = setting(
         True, help="without open water in view, water.json's intervals also allow for the "
                    "veiling light beyond the farthest surfaces, which only the curvature of "
-                   "their backscatter with range shows (transects, orbits; docs/water.md)")
+                   "their backscatter with range shows, and for the attenuation's move with "
+                   "it (transects, orbits; docs/water.md)")
     interval_floor: float = setting(
         0.01, help="least 95% half-width of each water value in water.json, as a share of it: "
                    "what the image values themselves are known to (black level, "

@@ -110,7 +110,8 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
     less what such a surface would add, as bright as the scene's bright surfaces or black, and
     the larger move is one more ``d^2``. With ``unseen_veiling`` and no open-water pixels, the
     veiling light the farthest surfaces do not yet show is one more
-    (:func:`veiling_beyond_surfaces`). The interval is a prediction interval,
+    (:func:`veiling_beyond_surfaces`), with the attenuation's move from refits with ``c_med``
+    held at either end of that slide (:func:`veiling_slide`). The interval is a prediction interval,
     ``1.96 sqrt(var + max tau^2)``: the fit's error is taken to be one more draw of the error
     that makes parts of the data disagree. A fit made with the incidental term
     (``fit.unshared``) is refitted with it: the parts with the fit's own variances, the other
@@ -124,7 +125,7 @@ def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tens
 
     A direction the data do not curve gives an infinite half-width in every parameter it
     touches; a parameter whose half-width exceeds ``max_relative`` of its value is flagged as
-    not determined. Costs up to 9 warm-started refits and their Hessians (1-7 s for 65k rays
+    not determined. Costs up to 11 warm-started refits and their Hessians (1-7 s for 65k rays
     on one CPU thread).
 
     Args:
