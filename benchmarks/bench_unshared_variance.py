@@ -26,7 +26,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from machine import cpu_name
 
@@ -62,26 +61,16 @@ def by_colour(with_bins: bool):
     from seathru.nerf import water_fit as wf
 
     def estimate(fit, ranges, observed, ids, groups, bins=12):
-        ranges, observed = ranges.double(), observed.double()
-        theta = wf.water_vector(fit).split(3)
-        residuals, clean, used = wf.projected_residuals(*theta, ranges, observed, ids, groups)
-        surface = torch.isfinite(ranges)
-        f2 = torch.exp(-2.0 * theta[0] * used[:, None])
-        norm = observed.new_zeros(groups, 3).index_add_(0, ids, f2)
-        leverage = (f2 / norm[ids].clamp_min(1e-300)).clamp_max(0.9)
-        z = ranges[surface]
-        edges = torch.quantile(z, torch.linspace(0.0, 1.0, bins + 1, dtype=z.dtype))[1:-1]
-        which = torch.zeros_like(ranges, dtype=torch.long)
-        which[surface] = torch.bucketize(z, edges)
-        one_hot = F.one_hot(which, bins).to(z.dtype) * surface[:, None]
-        j2 = clean.clamp_min(0.0)[ids] ** 2
-        out = torch.zeros_like(observed)
+        parts = wf.residual_variance_design(fit, ranges, observed, ids, groups, bins)
+        surface, f2, one_hot = parts.surface, parts.f2, parts.one_hot
+        j2 = parts.clean.clamp_min(0.0)[ids] ** 2
+        out = torch.zeros_like(parts.squared)
         for c in range(3):
             scaled = [f2[:, c:c + 1] * one_hot] if with_bins else []
             scaled.append(f2[:, c:c + 1] * j2[:, c:c + 1] * one_hot)
             design = torch.cat([torch.ones_like(f2[:, :1]), *scaled], 1)[surface]
-            squared = (residuals[:, c:c + 1] ** 2 / (1.0 - leverage[:, c:c + 1]))[surface]
-            coef = torch.linalg.lstsq(design, squared).solution[1:, 0].clamp_min(0.0)
+            coef = torch.linalg.lstsq(design, parts.squared[surface, c:c + 1]
+                                      ).solution[1:, 0].clamp_min(0.0)
             out[surface, c] = torch.cat(scaled, 1)[surface] @ coef
         return out
     return estimate

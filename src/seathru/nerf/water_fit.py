@@ -133,12 +133,40 @@ def unshared_variance(fit: "WaterFit", ranges: Tensor, observed: Tensor, ids: Te
     Returns:
         (N, 3) float64.
     """
+    if not bool(torch.isfinite(ranges).any()):
+        return torch.zeros_like(observed, dtype=torch.float64)
+    parts = residual_variance_design(fit, ranges, observed, ids, groups, bins)
+    surface, f2, one_hot = parts.surface, parts.f2, parts.one_hot
+    variance = torch.zeros(bins, 3, dtype=f2.dtype)
+    for c in range(3):
+        design = torch.cat([torch.ones_like(f2[:, :1]), f2[:, c:c + 1] * one_hot], 1)[surface]
+        variance[:, c] = torch.linalg.lstsq(design, parts.squared[surface, c:c + 1]
+                                            ).solution[1:, 0].clamp_min(0.0)
+    unshared = torch.zeros_like(parts.squared)
+    unshared[surface] = (f2 * (one_hot @ variance))[surface]
+    return unshared
+
+
+@dataclass
+class ResidualVarianceDesign:
+    """What :func:`unshared_variance` regresses, per pixel (N rows, float64)."""
+
+    squared: Tensor     # (N, 3) squared residual at the fit over one minus its leverage
+    clean: Tensor       # (groups, 3) the groups' clean colours at the fit
+    f2: Tensor          # (N, 3) squared transmission exp(-2 sigma_attn z)
+    one_hot: Tensor     # (N, bins) the pixel's range-quantile bin (zero rows: open water)
+    surface: Tensor     # (N,) bool, finite range
+
+
+def residual_variance_design(fit: "WaterFit", ranges: Tensor, observed: Tensor, ids: Tensor,
+                             groups: int, bins: int = 12) -> ResidualVarianceDesign:
+    """The residuals at ``fit`` and the range-bin design :func:`unshared_variance` fits them
+    with (also the start of other estimators of the unshared variance, as in
+    ``benchmarks/bench_unshared_variance.py``); needs at least one surface pixel."""
     ranges, observed = ranges.double(), observed.double()
     theta = water_vector(fit).to(ranges.device).split(3)
-    residuals, _, used = projected_residuals(*theta, ranges, observed, ids, groups)
+    residuals, clean, used = projected_residuals(*theta, ranges, observed, ids, groups)
     surface = torch.isfinite(ranges)
-    if not bool(surface.any()):
-        return torch.zeros_like(observed)
     f2 = torch.exp(-2.0 * theta[0] * used[:, None])
     norm = observed.new_zeros(groups, 3).index_add_(0, ids, f2)
     leverage = (f2 / norm[ids].clamp_min(1e-300)).clamp_max(0.9)
@@ -147,14 +175,7 @@ def unshared_variance(fit: "WaterFit", ranges: Tensor, observed: Tensor, ids: Te
     which = torch.zeros_like(ranges, dtype=torch.long)
     which[surface] = torch.bucketize(z, edges)
     one_hot = F.one_hot(which, bins).to(z.dtype) * surface[:, None]
-    variance = torch.zeros(bins, 3, dtype=z.dtype)
-    for c in range(3):
-        design = torch.cat([torch.ones_like(f2[:, :1]), f2[:, c:c + 1] * one_hot], 1)[surface]
-        squared = (residuals[:, c:c + 1] ** 2 / (1.0 - leverage[:, c:c + 1]))[surface]
-        variance[:, c] = torch.linalg.lstsq(design, squared).solution[1:, 0].clamp_min(0.0)
-    unshared = torch.zeros_like(observed)
-    unshared[surface] = f2[surface] * variance[which[surface]]
-    return unshared
+    return ResidualVarianceDesign(residuals ** 2 / (1.0 - leverage), clean, f2, one_hot, surface)
 
 
 def brightness_weights(clean: Tensor, c_med: Tensor, open_water_group: bool,
