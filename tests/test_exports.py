@@ -12,7 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from seathru.cli import main
-from seathru.geometry.poses import denormalise_c2w, pixel_of_points
+from seathru.geometry.poses import denormalise_c2w, depth_bounds, pixel_of_points
 from seathru.io.cameras import CameraSet, Frame, read_cameras, write_cameras
 from seathru.io.colmap import read_model
 from seathru.io.dataset_readers import read_colmap_model, read_nerfstudio
@@ -190,3 +190,67 @@ def test_points_with_tracks_are_observed_where_colmap_projects_them(tmp_path):
     assert sum(by_name[f.name].num_points3D for f in cameras.frames) == seen.sum()
     with pytest.raises(ValueError, match="seen"):
         colmap_reconstruction(cameras, names, points, seen=seen[:, :2])
+
+
+def _points_before_first_camera(cameras: CameraSet, count: int = 60, seed: int = 4):
+    """Points 4-12 source units in front of the first camera, and (M, V) which frames see
+    them inside their image (the first always)."""
+    rng = np.random.default_rng(seed)
+    first = denormalise_c2w(cameras.frames[0].c2w_array, CENTRE, SCALE)
+    local = np.column_stack([rng.uniform(-0.3, 0.3, (count, 2)), np.ones(count)]) \
+        * rng.uniform(4, 12, (count, 1))
+    points = local @ first[:3, :3].T + first[:3, 3]
+    normalised = (points - CENTRE) * SCALE
+    seen = np.stack([pixel_of_points(f.c2w_array, f.fx, f.fy, f.cx, f.cy, f.width, f.height,
+                                     normalised)[3] for f in cameras.frames], axis=1)
+    seen[:, 0] = True
+    return points, seen
+
+
+def test_the_colmap_export_carries_the_tracks_and_reads_back_with_bounds(tmp_path):
+    """The poses step's model has tracks; the export keeps them (observations of frames
+    matched by name), so the project's own reader takes each view's bounds from the points it
+    sees, as from the source model (the export is usable as a ``colmap`` dataset)."""
+    cameras = _cameras(views=4, seed=3)
+    points, seen = _points_before_first_camera(cameras)
+    poses = tmp_path / "poses"
+    for frame in cameras.frames:
+        write_float_tiff(poses / frame.image, np.full((frame.height, frame.width, 3), 0.3))
+    write_cameras(poses / "cameras.json", cameras)
+    (poses / "sparse").mkdir()
+    names = {f.name: f"{f.name}.png" for f in cameras.frames}
+    colmap_reconstruction(cameras, names, points, seen=seen).write(poses / "sparse")
+    assert main(["export", "--poses", str(poses), "--out", str(tmp_path / "export")]) == 0
+    model = read_model(tmp_path / "export" / "colmap")
+    column_of = {f.name: v for v, f in enumerate(cameras.frames)}
+    for point in model.points3D.values():
+        index = int(np.argmin(np.linalg.norm(points - point.xyz, axis=1)))
+        assert {column_of[Path(model.image(e.image_id).name).stem]
+                for e in point.track.elements} == set(np.flatnonzero(seen[index]))
+    source = {v.name: (v.near, v.far) for v in read_colmap_model(poses / "sparse").views}
+    exported = {v.name: (v.near, v.far) for v in read_colmap_model(
+        tmp_path / "export" / "colmap").views}
+    assert exported.keys() == source.keys()
+    assert exported[cameras.frames[0].name][0] is not None
+    for name, bounds in exported.items():
+        if source[name][0] is None:
+            assert bounds == (None, None)
+        else:
+            assert bounds == pytest.approx(source[name], rel=1e-9)
+
+
+def test_a_colmap_model_without_tracks_takes_bounds_from_the_points_in_view(tmp_path):
+    """Points with no tracks (some writers leave them out, and exports made before this
+    session): each camera's bounds come from the points in front of it and inside its image,
+    the first camera's from all of them; a camera that sees none gets none here (the poses
+    step gives it the scene's)."""
+    cameras = _cameras(views=4, seed=3)
+    points, seen = _points_before_first_camera(cameras)
+    names = {f.name: f"{f.name}.png" for f in cameras.frames}
+    colmap_reconstruction(cameras, names, points).write(tmp_path)
+    views = {v.name: v for v in read_colmap_model(tmp_path).views}
+    first = views[cameras.frames[0].name]
+    depths = (points - first.c2w[:3, 3]) @ first.c2w[:3, 2]
+    assert (first.near, first.far) == pytest.approx(depth_bounds(depths), rel=1e-9)
+    for column, frame in enumerate(cameras.frames):
+        assert (views[frame.name].near is None) == (not seen[:, column].any())

@@ -27,6 +27,7 @@ the views (:func:`frame_names`):
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -204,6 +205,16 @@ def read_colmap_model(source_dir: Path) -> PosedDataset:
                        near=image.near, far=image.far) for image in model_images(model)]
     if not views:
         raise PipelineError(f"{source_dir}: the COLMAP model has no registered image")
+    untracked = [v for v in views if v.near is None]
+    if untracked and model.num_points3D():
+        # points without tracks (some writers leave them out): each camera's bounds from the
+        # points its frustum holds, as for a nerfstudio point cloud
+        points = np.array([point.xyz for point in model.points3D.values()])
+        for view in untracked:
+            with contextlib.suppress(ValueError):
+                view.near, view.far = depth_bounds(visible_depths(view, points))
+        log.info("%s: %d images have no point tracks; their bounds come from the points in "
+                 "front of them", source_dir, len(untracked))
     unposed = sorted(names[model.image(i).name] for i in model.images
                      if not model.image(i).has_pose)
     return PosedDataset(views=views, source="colmap",

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -103,7 +104,9 @@ def colmap_reconstruction(cameras: CameraSet, image_names: dict[str, str],
     with distortion), one image per frame (``image_names``: the file names), and ``points``
     ``(M, 3)`` (source units) with ``colours`` ``(M, 3)`` uint8. Without ``seen`` the points
     have no tracks; with it (``(M, V)`` bool over ``cameras.frames``) point m is observed in
-    every frame v where ``seen[m, v]``, at the pixel it projects to there (undistorted)."""
+    every frame v where ``seen[m, v]``, at the pixel it projects to there (undistorted), where
+    that lies in front of the camera and inside its image (a point seen near the edge of a
+    distorted photograph may fall outside the undistorted one)."""
     observations: dict[str, list[tuple[int, np.ndarray]]] = {}
     if seen is not None:
         if points is None or seen.shape != (len(points), len(cameras.frames)):
@@ -112,9 +115,13 @@ def colmap_reconstruction(cameras: CameraSet, image_names: dict[str, str],
         for view, frame in enumerate(cameras.frames):
             w2c = np.linalg.inv(source_c2w(cameras, frame))
             local = xyz[seen[:, view]] @ w2c[:3, :3].T + w2c[:3, 3]
-            xy = np.stack([frame.fx * local[:, 0] / local[:, 2] + frame.cx,
-                           frame.fy * local[:, 1] / local[:, 2] + frame.cy], -1)
-            observations[frame.name] = list(zip(np.flatnonzero(seen[:, view]).tolist(), xy))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                xy = np.stack([frame.fx * local[:, 0] / local[:, 2] + frame.cx,
+                               frame.fy * local[:, 1] / local[:, 2] + frame.cy], -1)
+            inside = (local[:, 2] > 0) & (xy[:, 0] >= 0) & (xy[:, 0] <= frame.width) \
+                & (xy[:, 1] >= 0) & (xy[:, 1] <= frame.height)
+            observations[frame.name] = list(zip(
+                np.flatnonzero(seen[:, view])[inside].tolist(), xy[inside]))
     model = pycolmap.Reconstruction()
     camera_ids: dict[tuple, int] = {}
     elements: dict[int, list[pycolmap.TrackElement]] = {}
@@ -147,8 +154,11 @@ def colmap_reconstruction(cameras: CameraSet, image_names: dict[str, str],
     return model
 
 
-def sparse_points(poses_dir: Path) -> tuple[np.ndarray, np.ndarray] | None:
-    """``(xyz, rgb)`` of the poses step's COLMAP model (``sparse/``), or None without one."""
+def sparse_points(poses_dir: Path, frames: Sequence[Frame] = ()
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """``(xyz, rgb, seen)`` of the poses step's COLMAP model (``sparse/``), or None without
+    one: ``seen`` (M, len(frames)) bool, whether a point's track holds an observation in the
+    frame (the model's image names matched to the frames' names by stem)."""
     sparse = Path(poses_dir) / "sparse"
     if not any((sparse / f"points3D.{ext}").is_file() for ext in ("bin", "txt")):
         return None
@@ -156,7 +166,17 @@ def sparse_points(poses_dir: Path) -> tuple[np.ndarray, np.ndarray] | None:
     if model.num_points3D() == 0:
         return None
     points = list(model.points3D.values())
-    return (np.array([p.xyz for p in points]), np.array([p.color for p in points], np.uint8))
+    columns = {frame.name: column for column, frame in enumerate(frames)}
+    image_column = {image_id: columns.get(Path(image.name).stem, -1)
+                    for image_id, image in model.images.items()}
+    seen = np.zeros((len(points), len(frames)), bool)
+    for row, point in enumerate(points):
+        for element in point.track.elements:
+            column = image_column.get(element.image_id, -1)
+            if column >= 0:
+                seen[row, column] = True
+    return (np.array([p.xyz for p in points]), np.array([p.color for p in points], np.uint8),
+            seen)
 
 
 def _link_or_copy(source: Path, target: Path) -> None:
@@ -181,7 +201,7 @@ def export_poses(poses_dir: Path, out: Path, image_format: str = "png") -> dict:
     if not cameras.frames:
         raise PipelineError(f"{poses_dir / 'cameras.json'}: no frames to export")
     names = {f.name: f"{f.name}.{image_format}" for f in cameras.frames}
-    points = sparse_points(poses_dir)
+    points = sparse_points(poses_dir, cameras.frames)
     with atomic_dir(out) as tmp:
         ns_dir, colmap_dir = tmp / "nerfstudio", tmp / "colmap"
         masks = {}
@@ -207,7 +227,8 @@ def export_poses(poses_dir: Path, out: Path, image_format: str = "png") -> dict:
             cameras, {n: f"images/{f}" for n, f in names.items()}, masks, ply_path=ply))
         model_dir = colmap_dir / "sparse" / "0"
         model_dir.mkdir(parents=True)
-        colmap_reconstruction(cameras, names, *(points or (None, None))).write_text(model_dir)
+        xyz, rgb, seen = points or (None, None, None)
+        colmap_reconstruction(cameras, names, xyz, rgb, seen=seen).write_text(model_dir)
     return {"frames": len(cameras.frames), "points": 0 if points is None else len(points[0]),
             "nerfstudio": str(out / "nerfstudio" / "transforms.json"),
             "colmap": str(out / "colmap" / "sparse" / "0")}
