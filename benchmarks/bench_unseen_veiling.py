@@ -67,6 +67,7 @@ def assess(sim: Path, train: Path, arms: list[str]) -> dict:
     row["surface_fit"] = {k: getattr(fit, k) for k in KEYS}
     row["open_water_pixels"] = int((~torch.isfinite(used.ranges)).sum())
     for arm in arms:
+        started = time.perf_counter()
         spread = robust_halfwidths(
             fit, used.ranges, used.observed, used.ids, used.groups,
             colour_max=model.medium.colour_max, open_water_beyond=beyond,
@@ -90,7 +91,8 @@ def assess(sim: Path, train: Path, arms: list[str]) -> dict:
                 far_off = abs(t - true) > 0.05 * abs(true)
                 off.append(far_off)
                 (off_flagged if far_off else good_flagged).append(not determined[key][ch])
-        row[arm] = {"halfwidth": spread.halfwidth, "determined": determined,
+        row[arm] = {"seconds": time.perf_counter() - started,
+                    "halfwidth": spread.halfwidth, "determined": determined,
                     "held": sum(held), "off": sum(off), "off_flagged": sum(off_flagged),
                     "good": 9 - sum(off), "good_flagged": sum(good_flagged)}
     return row
@@ -152,20 +154,23 @@ def write(rows: list[dict], args, load: str, started: float) -> None:
              "as water.json's. held = intervals holding the truth; off flagged = values more "
              "than 5% off the truth flagged as not determined; good flagged = values within 5% "
              "flagged; `sigma_attn` half-width: the median over the model's three channels, as "
-             "a share of the trained value.", "",
+             "a share of the trained value; seconds: `robust_halfwidths` on one thread (the "
+             "analytic arm runs the with arm's assessment and rebuilds its half-widths, so "
+             "the refits' cost is with less without).", "",
              f"| model | open-water pixels | held ({slash}) | off flagged | good flagged | "
-             "`sigma_attn` half-width |", "|---|---|---|---|---|---|"]
+             "`sigma_attn` half-width | seconds |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         if "skipped" in r:
-            lines.append(f"| {r['model']} | skipped: {r['skipped']} | | | | |")
+            lines.append(f"| {r['model']} | skipped: {r['skipped']} | | | | | |")
             continue
         first = r[arms[0]]
+        seconds = " / ".join(f"{r[a]['seconds']:.1f}" for a in arms)
         lines.append(
             f"| {r['model']} | {r['open_water_pixels']} | "
             f"{' / '.join(str(r[a]['held']) for a in arms)} | "
             f"{' / '.join(str(r[a]['off_flagged']) for a in arms)} of {first['off']} | "
             f"{' / '.join(str(r[a]['good_flagged']) for a in arms)} of {first['good']} | "
-            f"{' / '.join(_attenuation_width(r, a) for a in arms)} |")
+            f"{' / '.join(_attenuation_width(r, a) for a in arms)} | {seconds} |")
     for prefix in sorted({r["model"].split("_")[0] for r in done}):
         part = [r for r in done if r["model"].split("_")[0] == prefix]
         total = {arm: {k: sum(r[arm][k] for r in part) for k in
@@ -198,6 +203,8 @@ def main() -> None:
                         help="bench_water.py work folders with trained models")
     parser.add_argument("--arms", default="without,analytic,with",
                         help=f"comma-separated, of {', '.join(ARMS)}")
+    parser.add_argument("--models", default="*",
+                        help="dive folders to assess (a glob, e.g. 'transect_*')")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
     args.arms = [a.strip() for a in args.arms.split(",") if a.strip()]
@@ -208,7 +215,7 @@ def main() -> None:
     started, load = time.time(), load_average()
     rows = []
     for work in args.work:
-        for train in sorted(work.glob("*/train_*")):
+        for train in sorted(work.glob(f"{args.models}/train_*")):
             if (train / "model.pt").exists() and (train.parent / "truth" / "water.json").exists():
                 rows.append(assess(train.parent, train, args.arms))
                 print(rows[-1]["model"], rows[-1].get("skipped") or
