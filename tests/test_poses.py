@@ -27,6 +27,7 @@ from seathru.io.cameras import read_cameras
 from seathru.io.warnings import read_warnings
 from seathru.io.colmap import make_camera, undistortion
 from seathru.io.pose_outputs import image_blur
+from seathru.io.tracks import training_depth_observations
 from seathru.radiometry.deblur import processing_blur
 from seathru.geometry.intrinsics import focal_from_metadata
 
@@ -503,6 +504,13 @@ def test_colmap_model_reader_reproduces_the_colmap_run(fern_ingest, fern_colmap,
         assert (a.fx, a.near, a.far) == pytest.approx((b.fx, b.near, b.far))
         np.testing.assert_array_equal(tifffile.imread(first.image_path(a)),
                                       tifffile.imread(again.image_path(b)))
+    # the source's points stay beside the cameras, for depth supervision and the tracks
+    source = pycolmap.Reconstruction(fern_colmap / "sparse")
+    assert pycolmap.Reconstruction(out / "sparse").num_points3D() == source.num_points3D() > 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["source_points_kept"] == source.num_points3D()
+    depth = training_depth_observations(again)
+    assert depth is not None and len(depth.ranges) > 100
 
 
 def test_known_focal_from_the_manifest_can_be_held_fixed(shared_data, tmp_path):

@@ -98,6 +98,8 @@ class NormalisationRecord(TypedDict):
 class _OutputSummaryOptional(TypedDict, total=False):
     # linear | cubic (seathru.io.colmap.Interpolation); reports written before it: linear
     undistort_interpolation: str
+    # points of a COLMAP source's model kept in sparse/ (pose_outputs.keep_source_model)
+    source_points_kept: int
 
 
 class OutputSummary(_OutputSummaryOptional):
