@@ -209,10 +209,7 @@ def read_colmap_model(source_dir: Path) -> PosedDataset:
     if untracked and model.num_points3D():
         # points without tracks (some writers leave them out): each camera's bounds from the
         # points its frustum holds, as for a nerfstudio point cloud
-        points = np.array([point.xyz for point in model.points3D.values()])
-        for view in untracked:
-            with contextlib.suppress(ValueError):
-                view.near, view.far = depth_bounds(visible_depths(view, points))
+        bounds_from_points(untracked, np.array([p.xyz for p in model.points3D.values()]))
         log.info("%s: %d images have no point tracks; their bounds come from the points in "
                  "front of them", source_dir, len(untracked))
     unposed = sorted(names[model.image(i).name] for i in model.images
@@ -359,12 +356,16 @@ def read_nerfstudio(source: Path) -> PosedDataset:
         points = _read_ply_points(path.parent / ply)
         if points is not None:
             notes["bounds_from"] = str(path.parent / ply)
-            for view in views:
-                try:
-                    view.near, view.far = depth_bounds(visible_depths(view, points))
-                except ValueError:
-                    pass
+            bounds_from_points(views, points)
     return PosedDataset(views=views, source="nerfstudio", notes=notes)
+
+
+def bounds_from_points(views: list[PosedView], points: np.ndarray) -> None:
+    """Give each of ``views`` the bounds (``depth_bounds``) of the points ``(M, 3)`` in front
+    of it and inside its image, in place; a view that sees none keeps its own."""
+    for view in views:
+        with contextlib.suppress(ValueError):
+            view.near, view.far = depth_bounds(visible_depths(view, points))
 
 
 def visible_depths(view: PosedView, points: np.ndarray) -> np.ndarray:
