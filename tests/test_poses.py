@@ -509,6 +509,7 @@ def test_colmap_model_reader_reproduces_the_colmap_run(fern_ingest, fern_colmap,
     assert pycolmap.Reconstruction(out / "sparse").num_points3D() == source.num_points3D() > 0
     report = json.loads((out / "report.json").read_text())
     assert report["source_points_kept"] == source.num_points3D()
+    assert report["source_model"]["kept"] and report["source_model"]["points"] > 0
     depth = training_depth_observations(again)
     assert depth is not None and len(depth.ranges) > 100
 

@@ -2,8 +2,9 @@
 report: tiny datasets built in a tmp folder from ../shared/data/fern_llff (10 of its images_8
 frames, downscaled to 126x94, with its poses_bounds.npy) arranged as
 
-- ``llff_wb``: the SeaThru-NeRF release (``images_wb/`` beside a decoy ``images/`` and
-  ``poses_bounds.npy``): ``ingest.images=auto`` must take images_wb, read as linear;
+- ``llff_wb``: the SeaThru-NeRF release (``images_wb/`` beside a decoy ``images/``,
+  ``poses_bounds.npy`` and the ``sparse/0`` its poses came from, naming the full-size JPEGs):
+  ``ingest.images=auto`` must take images_wb, read as linear, and the model be kept;
 - ``llff_n``: LLFF ``images_2/`` and ``images_4/``, ``ingest.images=images_4`` chooses;
 - ``nerfstudio``: ``transforms.json`` whose frames point into ``images/``, two of them listed but
   missing, intrinsics at a larger size (one frame with its own), a ``sparse_pc.ply`` for bounds;
@@ -94,6 +95,7 @@ def build_llff_wb(fern: Path, root: Path) -> None:
     write_images(root / "images_wb", names, images)
     write_images(root / "images", names, images, scale=2.0)   # auto must not take it
     np.save(root / "poses_bounds.npy", rows)
+    write_colmap_text(root / "sparse" / "0", [f"{n}.JPG" for n in names], rows)
 
 
 def build_llff_n(fern: Path, root: Path) -> None:
@@ -280,6 +282,22 @@ def test_llff_auto_takes_the_release_images_wb_as_linear(sources_run):
     assert layout["images"] == "images_wb" and layout["kind"] == "linear"
     assert "SeaThru-NeRF" in layout["reason"]
     assert manifest(sources_run, "llff_wb")["input"]["kind"] == "linear"
+
+
+def test_llff_release_model_is_kept_and_trained_on(sources_run):
+    """The release's sparse/0 is kept as poses/sparse: training has depth rays from it."""
+    report = json.loads((results(sources_run, "llff_wb") / "poses" / "report.json").read_text())
+    model = report["source_model"]
+    assert model["kept"] and model["shared_images"] == FRAMES, model
+    assert model["max_position_error_share"] < 1e-6 and report["source_points_kept"] > 100
+    kept = pycolmap.Reconstruction(results(sources_run, "llff_wb") / "poses" / "sparse")
+    assert kept.num_points3D() == report["source_points_kept"]
+    train_log = "".join(p.read_text() for p in
+                        (sources_run["workdir"] / "logs" / "llff_wb").glob("train*.log"))
+    assert "sparse depth:" in train_log, train_log[-2000:]
+    other = json.loads((results(sources_run, "llff_n") / "poses" / "report.json").read_text())
+    assert "source_model" not in other and not (results(sources_run, "llff_n") / "poses"
+                                                / "sparse").exists()
 
 
 def test_llff_option_chooses_images_n(sources_run):

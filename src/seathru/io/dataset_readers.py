@@ -42,7 +42,7 @@ import pycolmap
 from seathru.geometry.poses import (FAR_MARGIN, NEAR_MARGIN, depth_bounds, llff_to_opencv,
                                    opengl_to_opencv, point_depths)
 from seathru.errors import PipelineError
-from seathru.io.colmap import make_camera, model_images, read_model
+from seathru.io.colmap import find_model_dir, make_camera, model_images, read_model
 from seathru.io.images import IMAGE_EXTENSIONS, read_image
 from seathru.io.raw import RAW_EXTENSIONS
 
@@ -159,7 +159,9 @@ def read_llff(source_dir: Path, fallback_names: list[str] | None = None,
     images. Rows are in sorted image-name order: the names come from ``folder`` (the one the
     ingest step read) when it holds exactly N images, else from the first of images_wb,
     Images_wb, images, images_<N> that does (else from ``fallback_names``). The camera is a
-    centred pinhole at (w, h); the step rescales it to the images it uses.
+    centred pinhole at (w, h); the step rescales it to the images it uses. A COLMAP model
+    beside the file (``sparse/0``) is named in the notes as ``model`` (the poses step keeps it
+    if it is in the poses' frame: ``seathru.io.source_model``).
     """
     source_dir = Path(source_dir)
     path = source_dir / "poses_bounds.npy"
@@ -192,7 +194,20 @@ def read_llff(source_dir: Path, fallback_names: list[str] | None = None,
     notes = {"poses_bounds": str(path),
              "names_from": str(folder_used) if folder_used else "ingest linear images",
              "full_size_hwf": [float(v) for v in poses[0, :, 4]]}
+    model = llff_model_dir(source_dir)
+    if model is not None:
+        notes["model"] = str(model)
     return PosedDataset(views=views, source="llff", notes=notes)
+
+
+def llff_model_dir(source_dir: Path) -> Path | None:
+    """The COLMAP model beside an LLFF dataset's ``poses_bounds.npy`` (``sparse/0`` or
+    ``sparse``; the SeaThru-NeRF release has one), or None."""
+    if not (source_dir / "sparse").is_dir():
+        return None
+    with contextlib.suppress(PipelineError):
+        return find_model_dir(source_dir / "sparse")
+    return None
 
 
 # -- COLMAP model ----------------------------------------------------------------------------

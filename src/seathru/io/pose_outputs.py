@@ -21,11 +21,12 @@ from seathru.geometry.poses import (complete_bounds, normalise_c2w, range_bounds
                                     unit_ball_normalisation)
 from seathru.io.cameras import CameraSet, Frame, every_nth_split, write_cameras
 from seathru.io.colmap import (Interpolation, Undistortion, camera_at_size, camera_dict,
-                               read_model, undistortion)
+                               undistortion)
 from seathru.io.dataset_readers import PosedDataset, PosedView
 from seathru.io.images import read_image, read_mask, write_float_tiff, write_mask
 from seathru.io.manifest import IngestFolder
 from seathru.io.pose_report import OutputSummary
+from seathru.io.source_model import keep_source_model
 from seathru.radiometry.deblur import processing_blur
 
 log = logging.getLogger(__name__)
@@ -51,22 +52,6 @@ def fill_bounds(views: list[PosedView], near: float | None, far: float | None,
         view.near, view.far = view_near, view_far
         if not 0 < view.near < view.far:
             raise PipelineError(f"{view.name}: invalid bounds near={view.near}, far={view.far}")
-
-
-def keep_source_model(dataset: PosedDataset, out: Path) -> int:
-    """Write a COLMAP source's model beside ``cameras.json`` (``out/sparse``, binary), as the
-    poses step writes the model it computes: the training takes depth supervision from its
-    points and the medium decision and evaluation their colour along the tracks
-    (``seathru.io.tracks``). Returns the points kept (0: not a COLMAP model, or no points)."""
-    source = dataset.notes.get("model")
-    if dataset.source != "colmap" or not source:
-        return 0
-    model = read_model(Path(source))
-    if model.num_points3D() == 0:
-        return 0
-    (out / "sparse").mkdir(parents=True, exist_ok=True)
-    model.write(out / "sparse")
-    return int(model.num_points3D())
 
 
 def image_blur(record: dict | None, warp: Undistortion,
@@ -121,7 +106,7 @@ def write_pose_outputs(dataset: PosedDataset, ingest: IngestFolder, out: Path,
                        interpolation: Interpolation = "linear",
                        metres_per_unit: float | None = None) -> OutputSummary:
     """Undistort the linear images and masks, normalise, write ``cameras.json`` (and a COLMAP
-    source's model beside it: :func:`keep_source_model`).
+    source's COLMAP model beside it: ``seathru.io.source_model``).
 
     Views without a linear image, and linear images without a pose, are left out (with a
     warning). ``near`` / ``far`` override every frame's depth bounds (source units); ``where``
@@ -173,7 +158,8 @@ def write_pose_outputs(dataset: PosedDataset, ingest: IngestFolder, out: Path,
                         far=max(f.far for f in frames), centre=centre.tolist(), scale=scale,
                         source=dataset.source, metres_per_source_unit=metres_per_unit)
     write_cameras(out / "cameras.json", cameras)
-    kept = keep_source_model(dataset, out)
+    source_model = keep_source_model(dataset, out)
+    kept = source_model["points"] if source_model and source_model["kept"] else 0
     distorted = {json.dumps(camera_dict(view.camera), sort_keys=True) for view, _ in records}
     return {
         "frames": len(frames),
@@ -187,4 +173,5 @@ def write_pose_outputs(dataset: PosedDataset, ingest: IngestFolder, out: Path,
         "posed_without_linear_image": without_image,
         "linear_images_without_pose": without_pose,
         **({"source_points_kept": kept} if kept else {}),
+        **({"source_model": source_model} if source_model else {}),
     }

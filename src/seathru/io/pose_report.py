@@ -95,11 +95,27 @@ class NormalisationRecord(TypedDict):
     method: str
 
 
+class SourceModelRecord(TypedDict):
+    """The poses report's ``source_model``: a source's COLMAP model and whether it was kept."""
+
+    model: str                        # the model folder read
+    points: int                       # 3D points in the model
+    kept: bool                        # written to poses/sparse
+    reason: str                       # why (not) kept, for a person
+    shared_images: int                # registered model images named like a posed view
+    max_position_error_share: float | None  # after the similarity; of the poses' spread
+    max_rotation_error_deg: float | None
+    scale: float | None               # source units per model unit (the similarity's)
+
+
+
 class _OutputSummaryOptional(TypedDict, total=False):
     # linear | cubic (seathru.io.colmap.Interpolation); reports written before it: linear
     undistort_interpolation: str
-    # points of a COLMAP source's model kept in sparse/ (pose_outputs.keep_source_model)
+    # points of a source's COLMAP model kept in sparse/ (seathru.io.source_model)
     source_points_kept: int
+    # the source's COLMAP model, kept or not (a colmap dataset, an LLFF one with sparse/0)
+    source_model: SourceModelRecord
 
 
 class OutputSummary(_OutputSummaryOptional):
@@ -167,7 +183,8 @@ def pose_warnings(report: AnyPoseReport, layout: dict | None = None) -> list[Ste
     """What the poses step's user should look at, from its report: an unconfirmed camera model
     (kept with ``poses.on_unconfirmed=warn``), images COLMAP did not register, posed frames
     without an image (except those the ingest step already named missing in its ``layout``
-    record), images without a pose, and fewer than ``FEW_TRAINING_VIEWS`` training views."""
+    record), images without a pose, a source's COLMAP model that does not match its poses, and
+    fewer than ``FEW_TRAINING_VIEWS`` training views."""
     found: list[StepWarning] = []
     if report.get("gate_passed") is False:
         found.append(step_warning(
@@ -198,6 +215,14 @@ def pose_warnings(report: AnyPoseReport, layout: dict | None = None) -> list[Ste
             "poses", "images_without_pose", f"{len(without_pose)} image(s) have no pose in "
             f"the source and are left out: " + ", ".join(without_pose[:10])
             + (" ..." if len(without_pose) > 10 else ""), images=without_pose))
+    source_model = report.get("source_model")
+    if source_model and not source_model["kept"]:
+        found.append(step_warning(
+            "poses", "source_model_not_kept", f"the dataset's COLMAP model "
+            f"({source_model['model']}) is not used: {source_model['reason']}; training goes "
+            f"without depth from its points and the medium decision without its tracks. Put "
+            f"the model the poses came from beside them, or leave it out",
+            **{k: v for k, v in source_model.items() if k not in ("model", "reason")}))
     frames, held_out = report.get("frames"), report.get("test_frames")
     if isinstance(frames, int) and isinstance(held_out, int) \
             and frames - held_out < FEW_TRAINING_VIEWS:

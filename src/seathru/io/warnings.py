@@ -38,7 +38,7 @@ CODES = {
     "ingest": ("rejected_images", "missing_frames", "clipped_pixels", "image_warnings",
                "dataset_warning"),
     "poses": ("unconfirmed_poses", "unregistered_images", "posed_without_image",
-              "images_without_pose", "few_views"),
+              "images_without_pose", "few_views", "source_model_not_kept"),
     "train": ("water_model_off", "not_converged"),
 }
 

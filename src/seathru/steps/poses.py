@@ -16,7 +16,7 @@ Outputs (``--out``, swapped in only when complete):
   masks/<stem>.png   validity masks, warped the same way (255 = valid)
   report.json        what was tried and measured (every COLMAP attempt, unregistered images)
   warnings.json      unconfirmed model, unregistered images, frames left out (seathru.io.warnings)
-  sparse/            the COLMAP model used (colmap source only)
+  sparse/            the COLMAP model: computed, or the source's (seathru.io.source_model)
 
 Normalisation: normalised = (source - centre) * scale puts every camera's [near, far] frustum
 inside the unit ball (``seathru.io.pose_outputs``).
