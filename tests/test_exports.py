@@ -1,5 +1,5 @@
-"""The export step: nerfstudio transforms.json and a COLMAP text model, read back through the
-project's own readers (``seathru.io.dataset_readers``) and compared with the camera file."""
+"""The export step: nerfstudio transforms.json, a COLMAP text model and the SeaThru-NeRF
+layout, read back through the project's own readers (``seathru.io.dataset_readers``) and compared with the camera file."""
 
 from __future__ import annotations
 
@@ -15,10 +15,11 @@ from seathru.cli import main
 from seathru.geometry.poses import denormalise_c2w, depth_bounds, pixel_of_points
 from seathru.io.cameras import CameraSet, Frame, read_cameras, write_cameras
 from seathru.io.colmap import read_model
-from seathru.io.dataset_readers import read_colmap_model, read_nerfstudio
+from seathru.io.dataset_readers import read_colmap_model, read_llff, read_nerfstudio
 from seathru.io.exports import (NERFSTUDIO_APPLIED, colmap_reconstruction,
-                                nerfstudio_transforms)
+                                llff_camera_problem, nerfstudio_transforms)
 from seathru.io.images import read_image, write_float_tiff, write_mask
+from seathru.io.source_model import keep_source_model
 
 CENTRE, SCALE = np.array([3.0, -1.0, 2.0]), 0.25
 
@@ -254,3 +255,56 @@ def test_a_colmap_model_without_tracks_takes_bounds_from_the_points_in_view(tmp_
     assert (first.near, first.far) == pytest.approx(depth_bounds(depths), rel=1e-9)
     for column, frame in enumerate(cameras.frames):
         assert (views[frame.name].near is None) == (not seen[:, column].any())
+
+
+def _centred(cameras: CameraSet) -> CameraSet:
+    """The same cameras with one focal length and a centred principal point (LLFF's)."""
+    for frame in cameras.frames:
+        frame.fy, frame.cx, frame.cy = frame.fx, frame.width / 2, frame.height / 2
+    return cameras
+
+
+def test_the_seathru_nerf_export_reads_back_as_an_llff_dataset(tmp_path):
+    """images_wb (linear, one gain), poses_bounds.npy and sparse/0 as the release has them:
+    the project's LLFF reader finds the same cameras, the same names and bounds, and keeps the
+    model in the poses' frame; the gain brings the brightest 0.1% under 1."""
+    cameras = _centred(_cameras(views=4, seed=3))
+    points, seen = _points_before_first_camera(cameras)
+    poses = tmp_path / "poses"
+    rng = np.random.default_rng(5)
+    linear = {}
+    for frame in cameras.frames:
+        linear[frame.name] = rng.random((frame.height, frame.width, 3)) * 1.6
+        write_float_tiff(poses / frame.image, linear[frame.name])
+    write_cameras(poses / "cameras.json", cameras)
+    (poses / "sparse").mkdir()
+    colmap_reconstruction(cameras, {f.name: f"{f.name}.png" for f in cameras.frames}, points,
+                          seen=seen).write(poses / "sparse")
+    assert main(["export", "--poses", str(poses), "--out", str(tmp_path / "export")]) == 0
+    root = tmp_path / "export" / "seathru_nerf"
+    record = json.loads((root / "export.json").read_text())
+    every = np.concatenate([v.ravel() for v in linear.values()])
+    assert record["linear_gain"] == pytest.approx(1 / np.quantile(every, 0.999), rel=0.02)
+    dataset = read_llff(root)
+    assert [v.name for v in dataset.views] == sorted(linear)
+    for view in dataset.views:
+        frame = next(f for f in cameras.frames if f.name == view.name)
+        np.testing.assert_allclose(view.c2w, denormalise_c2w(frame.c2w_array, CENTRE, SCALE),
+                                   atol=1e-9)
+        assert (view.camera.width, view.camera.height) == (frame.width, frame.height)
+        assert view.camera.params[0] == pytest.approx(frame.fx)
+        assert view.near < frame.near / SCALE and view.far > frame.far / SCALE
+        stored = read_image(root / "images_wb" / f"{view.name}.png")
+        expected = np.round(np.clip(linear[view.name] * record["linear_gain"], 0, 1) * 255)
+        np.testing.assert_array_equal(np.round(stored * 255), expected)
+    kept = keep_source_model(dataset, tmp_path / "kept")
+    assert kept["kept"] and kept["shared_images"] == 4 and kept["points"] == len(points)
+    assert kept["max_position_error_share"] < 1e-9
+
+
+def test_cameras_llff_cannot_hold_skip_the_seathru_nerf_layout_saying_why(exported):
+    """The module fixture's cameras have fx != fy: no seathru_nerf/, the others written."""
+    assert not (exported["root"] / "export" / "seathru_nerf").exists()
+    assert (exported["root"] / "export" / "colmap" / "sparse" / "0").is_dir()
+    assert "differ" in llff_camera_problem(exported["cameras"])
+    assert llff_camera_problem(_centred(_cameras())) is None

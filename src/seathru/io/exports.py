@@ -1,4 +1,5 @@
-"""Exports of the poses step's cameras that other tools open: nerfstudio and COLMAP.
+"""Exports of the poses step's cameras that other tools open: nerfstudio, COLMAP and the
+SeaThru-NeRF release's layout.
 
 Folder ``results/<dataset>/export`` (replaced atomically)::
 
@@ -9,6 +10,10 @@ Folder ``results/<dataset>/export`` (replaced atomically)::
     colmap/sparse/0/{cameras,images,points3D}.txt   a COLMAP text model (written by pycolmap,
                                  which adds rigs.txt and frames.txt for COLMAP >= 3.12)
     colmap/images/<name>.png     the same 8-bit copies (hard links where possible)
+    seathru_nerf/images_wb/<name>.png  8-bit *linear* copies (the release's images_wb)
+    seathru_nerf/poses_bounds.npy      LLFF poses and bounds, rows in file-name order
+    seathru_nerf/sparse/0/*.bin        the COLMAP model (tracks included), the poses' frame
+    seathru_nerf/export.json           the gain the linear copies carry (``LlffExportRecord``)
 
 Cameras are the poses step's pinhole cameras (images with lens distortion were undistorted
 there, and the copies are those undistorted images); the writers take distortion parameters
@@ -22,6 +27,16 @@ nerfstudio's world, ``applied_transform`` the 3x4 map from our world to it: the 
 (x, y, z) -> (x, z, -y), so a COLMAP-style y-down world is z-up in the viewer. COLMAP:
 ``cam_from_world`` per image, OpenCV axes; points without tracks (their observations are on
 the distorted images, not on these copies).
+
+seathru_nerf: what the SeaThru-NeRF code and NerfBaselines' ``seathru-nerf`` loader read (and
+this pipeline's ``llff`` source): linear, white-balanced 8-bit PNGs (the loaders read them as
+stored, ``uint8 / 255``), scaled by one gain for the whole set so that the brightest 0.1% of
+pixels are not clipped (recorded in ``export.json``: divide by it to return to the training
+images' scale; the water's coefficients do not change, its colour scales with it). LLFF rows
+are ``[R | t | (h, w, f)]`` with (down, right, back) camera axes and the frame's (near, far)
+(the poses step's range bounds: looser than LLFF's depth percentiles). LLFF has one centred
+focal length, so cameras with ``fx != fy`` or an off-centre principal point are not exported
+in this layout (``export_poses`` says why).
 """
 
 from __future__ import annotations
@@ -30,12 +45,13 @@ import os
 import shutil
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TypedDict
 
 import numpy as np
 import pycolmap
 
 from seathru.errors import PipelineError
-from seathru.geometry.poses import denormalise_c2w, opencv_to_opengl
+from seathru.geometry.poses import denormalise_c2w, opencv_to_llff, opencv_to_opengl
 from seathru.io.atomic import atomic_dir, write_json
 from seathru.io.cameras import CameraSet, Frame, read_cameras
 from seathru.io.images import read_image, write_8bit
@@ -46,6 +62,22 @@ NERFSTUDIO_APPLIED = np.array([[1.0, 0.0, 0.0, 0.0],
                                [0.0, 0.0, 1.0, 0.0],
                                [0.0, -1.0, 0.0, 0.0]])
 DISTORTION_KEYS = ("k1", "k2", "p1", "p2")
+LLFF_FORMAT = "seathru-export-llff/1"
+#: The linear copies are scaled so that this share of all pixel values is not clipped.
+LLFF_UNCLIPPED_SHARE = 0.999
+#: Cameras an LLFF row represents: fx and fy within this ratio, the principal point within
+#: this many pixels of the image centre.
+LLFF_FOCAL_TOLERANCE = 1e-3
+LLFF_CENTRE_TOLERANCE_PX = 0.5
+
+
+class LlffExportRecord(TypedDict):
+    """``seathru_nerf/export.json``."""
+
+    format: str                  # LLFF_FORMAT
+    linear_gain: float           # images_wb = clip(gain * training image, 0, 1), 8-bit
+    frames: int
+    units: str                   # what poses_bounds.npy's translations and bounds are in
 
 
 def source_c2w(cameras: CameraSet, frame: Frame) -> np.ndarray:
@@ -179,6 +211,56 @@ def sparse_points(poses_dir: Path, frames: Sequence[Frame] = ()
             seen)
 
 
+def llff_camera_problem(cameras: CameraSet) -> str | None:
+    """Why ``cameras`` cannot be LLFF rows (one focal length, a centred principal point), or
+    None when they can."""
+    for frame in cameras.frames:
+        if abs(frame.fx / frame.fy - 1.0) > LLFF_FOCAL_TOLERANCE:
+            return f"{frame.name}: fx {frame.fx:.2f} and fy {frame.fy:.2f} differ"
+        off = max(abs(frame.cx - frame.width / 2), abs(frame.cy - frame.height / 2))
+        if off > LLFF_CENTRE_TOLERANCE_PX:
+            return f"{frame.name}: principal point {off:.1f} px off the image centre"
+    return None
+
+
+def llff_rows(cameras: CameraSet, order: Sequence[Frame]) -> np.ndarray:
+    """``(N, 17)`` ``poses_bounds.npy`` rows of the frames in ``order`` (source units):
+    ``[R | t | (h, w, f)]`` with LLFF's (down, right, back) axes, then (near, far)."""
+    rows = []
+    for frame in order:
+        pose = opencv_to_llff(source_c2w(cameras, frame))
+        hwf = np.array([[frame.height], [frame.width], [frame.fx]], np.float64)
+        rows.append(np.r_[np.concatenate([pose, hwf], axis=1).ravel(),
+                          frame.near / cameras.scale, frame.far / cameras.scale])
+    return np.array(rows)
+
+
+def write_llff(cameras: CameraSet, out: Path, model: pycolmap.Reconstruction | None) -> int:
+    """The SeaThru-NeRF release's layout in ``out`` (see the module docstring): images_wb,
+    poses_bounds.npy, sparse/0 (when ``model``, whose images are named ``<frame>.png``) and
+    export.json. Returns the frames written."""
+    order = sorted(cameras.frames, key=lambda f: f"{f.name}.png")   # LLFF sorts file names
+    samples = []
+    for frame in order:    # a strided sample of each image: the gain without holding them all
+        image = read_image(cameras.image_path(frame))[..., :3]
+        stride = max(1, round((image.shape[0] * image.shape[1] / 100_000) ** 0.5))
+        samples.append(np.nan_to_num(image[::stride, ::stride]).ravel())
+    bright = float(np.quantile(np.concatenate(samples), LLFF_UNCLIPPED_SHARE))
+    gain = 1.0 / bright if bright > 1.0 else 1.0
+    for frame in order:
+        image = np.nan_to_num(read_image(cameras.image_path(frame))[..., :3])
+        write_8bit(out / "images_wb" / f"{frame.name}.png", np.clip(image * gain, 0.0, 1.0))
+    np.save(out / "poses_bounds.npy", llff_rows(cameras, order))
+    if model is not None:
+        (out / "sparse" / "0").mkdir(parents=True)
+        model.write(out / "sparse" / "0")
+    record: LlffExportRecord = {"format": LLFF_FORMAT, "linear_gain": gain,
+                                "frames": len(order),
+                                "units": "the source reconstruction's (as the COLMAP export)"}
+    write_json(out / "export.json", record)
+    return len(order)
+
+
 def _link_or_copy(source: Path, target: Path) -> None:
     target.parent.mkdir(parents=True, exist_ok=True)
     try:
@@ -188,10 +270,12 @@ def _link_or_copy(source: Path, target: Path) -> None:
 
 
 def export_poses(poses_dir: Path, out: Path, image_format: str = "png") -> dict:
-    """Write the nerfstudio and COLMAP exports of a poses output folder into ``out``.
+    """Write the nerfstudio, COLMAP and SeaThru-NeRF exports of a poses output folder into
+    ``out``.
 
     Returns:
-        a summary: frames, points, the two entry files.
+        a summary: frames, points, the entry files (``seathru_nerf`` None, with
+        ``seathru_nerf_skipped`` saying why, when the cameras are not LLFF's).
 
     Raises:
         PipelineError: the camera file or an image is missing.
@@ -228,7 +312,15 @@ def export_poses(poses_dir: Path, out: Path, image_format: str = "png") -> dict:
         model_dir = colmap_dir / "sparse" / "0"
         model_dir.mkdir(parents=True)
         xyz, rgb, seen = points or (None, None, None)
-        colmap_reconstruction(cameras, names, xyz, rgb, seen=seen).write_text(model_dir)
+        model = colmap_reconstruction(cameras, names, xyz, rgb, seen=seen)
+        model.write_text(model_dir)
+        llff_problem = llff_camera_problem(cameras)
+        if llff_problem is None:
+            png = {name: f"{name}.png" for name in names}
+            write_llff(cameras, tmp / "seathru_nerf", None if points is None else
+                       colmap_reconstruction(cameras, png, xyz, rgb, seen=seen))
     return {"frames": len(cameras.frames), "points": 0 if points is None else len(points[0]),
             "nerfstudio": str(out / "nerfstudio" / "transforms.json"),
-            "colmap": str(out / "colmap" / "sparse" / "0")}
+            "colmap": str(out / "colmap" / "sparse" / "0"),
+            "seathru_nerf": None if llff_problem else str(out / "seathru_nerf"),
+            "seathru_nerf_skipped": llff_problem}
