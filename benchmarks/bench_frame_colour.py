@@ -33,7 +33,10 @@ DIVES = {
     "transect": f"{BALANCED}; simulate.path=transect",
     "orbit": f"{BALANCED}; simulate.path=orbit",
     "survey_plain_jpeg": "ingest.images=jpeg",
+    "transect_plain_jpeg": "ingest.images=jpeg; simulate.path=transect",
 }
+#: The alternative arm: range-like patterns of offsets left to the range term.
+LEFT_TO_RANGE = 0.02
 
 
 def run_poses(work: Path, cores: int) -> None:
@@ -68,9 +71,10 @@ def true_offsets(root: Path) -> dict[str, np.ndarray]:
     return offsets
 
 
-def found_offsets(root: Path):
+def found_offsets(root: Path, **options):
     """The training frames' casts as the train step finds them
-    (``seathru.io.tracks.input_colour_change``) and the frames' names."""
+    (``seathru.io.tracks.input_colour_change``; ``options`` for ``frame_colour_offsets``) and
+    the frames' names."""
     from seathru.eval.track_slope import frame_colour_offsets
     from seathru.io import tracks
     from seathru.io.cameras import read_cameras
@@ -80,7 +84,7 @@ def found_offsets(root: Path):
     windows = tracks.track_windows(cameras, obs)
     train = ~obs.held_out
     return frame_colour_offsets(obs.track_ids[train], obs.frames[train], obs.ranges[train],
-                                windows.observed[train]), obs.names
+                                windows.observed[train], **options), obs.names
 
 
 def _pair(values) -> str:
@@ -90,20 +94,28 @@ def _pair(values) -> str:
 def dive_row(work: Path, name: str) -> str:
     root = work / "results" / name
     if not (root / "poses" / "cameras.json").is_file():
-        return f"| {name} | no poses (see {work}/logs/{name}) |" + " |" * 4
+        return f"| {name} | no poses (see {work}/logs/{name}) |" + " |" * 8
     cast, names = found_offsets(root)
+    every, _ = found_offsets(root, min_unexplained=LEFT_TO_RANGE)
     varies = "yes" if cast.varies else "no"
+    left = f"{_pair(cast.least_unexplained)}"
+    varies_every = f"{'yes' if every.varies else 'no'} ({', '.join(map(str, every.left_to_range))})"
     if name == "reef":
-        return f"| reef (d3_reef, no truth) | - | {_pair(cast.spread)} | - | - | {varies} |"
+        return (f"| reef (d3_reef, no truth) | - | {_pair(cast.spread)} | - | - | {varies} | "
+                f"{left} | {_pair(every.spread)} | - | {varies_every} |")
     truth = true_offsets(root)
     on_frames = np.array([truth[Path(names[int(f)]).stem] for f in cast.frames])
     on_frames -= np.median(on_frames, axis=0)
     spread = np.sqrt(np.mean(on_frames ** 2, axis=0))       # as FrameColour.spread
-    error = cast.offsets - on_frames
-    error -= np.median(error, axis=0)
+    errors = []
+    for found in (cast, every):
+        error = found.offsets - on_frames
+        errors.append(error - np.median(error, axis=0))
     return (f"| {name} | {_pair(spread)} | {_pair(cast.spread)} | "
-            f"{_pair(np.sqrt((error ** 2).mean(axis=0)))} | {_pair(np.abs(error).max(axis=0))} "
-            f"| {varies} |")
+            f"{_pair(np.sqrt((errors[0] ** 2).mean(axis=0)))} | "
+            f"{_pair(np.abs(errors[0]).max(axis=0))} | {varies} | {left} | "
+            f"{_pair(every.spread)} | {_pair(np.sqrt((errors[1] ** 2).mean(axis=0)))} | "
+            f"{varies_every} |")
 
 
 def main() -> None:
@@ -121,9 +133,15 @@ def main() -> None:
         "Errors in log red / green, blue / green, both sides against their median frame; "
         "spread: the root mean square of the true casts and of those found over the training "
         "frames, against the median frame; varies: judged to vary (the train step corrects "
-        "it). `survey_plain_jpeg`: no white balance (the true casts are all zero).", "",
-        "| dive | true spread | spread found | error: rms | largest | varies |",
-        "|---|---|---|---|---|---|",
+        "it). `survey_plain_jpeg`, `transect_plain_jpeg`: no white balance (the true casts "
+        "are all zero). Least unexplained: the smallest share of a pattern of offsets the "
+        "range term leaves unexplained, red and blue ratio (`FrameColour.least_unexplained`); "
+        f"the last three columns: the same fit with `min_unexplained={LEFT_TO_RANGE}`, the "
+        "patterns under that share left to the range term (how many in brackets).",
+        "",
+        "| dive | true spread | spread found | error: rms | largest | varies | least "
+        f"unexplained | left to range ({LEFT_TO_RANGE}): spread | error: rms | varies |",
+        "|---|---|---|---|---|---|---|---|---|---|",
         *(dive_row(args.work, name) for name in names), "",
         footer(load_before, start),
     ]

@@ -3,6 +3,7 @@ seathru.io.tracks (the tracks of the poses step's COLMAP model as colour observa
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -575,6 +576,72 @@ def test_frame_colour_offsets_follow_a_drift_along_the_camera_path():
     error = cast.offsets - injected
     error -= np.median(error, axis=0)                # both are against the median frame
     assert np.sqrt((error ** 2).mean()) < 0.01 and np.abs(error).max() < 0.03
+
+
+def _transect_tracks(frames: int = 16, points: int = 1500, seed: int = 0):
+    """A camera moving forward 1.5 m above the seabed, seeing each point from 4 m ahead to
+    0.5 m ahead, through turbid water, with no colour cast: the later a frame sees a point,
+    the nearer it is, in every track alike."""
+    rng = np.random.default_rng(seed)
+    along = rng.uniform(0.0, frames * 0.5 + 4.0, points)
+    surface = rng.uniform(0.05, 0.8, (points, 3))
+    sigma, backscatter, veil = np.array([1.1, 0.66, 0.75]), np.array([0.5, 0.6, 0.7]), \
+        np.array([0.04, 0.22, 0.2])
+    ids, frame_of, ranges, colours = [], [], [], []
+    for frame in range(frames):
+        ahead = along - frame * 0.5
+        seen = np.flatnonzero((ahead > 0.5) & (ahead < 4.0))
+        z = np.hypot(ahead[seen], 1.5)[:, None]
+        colour = surface[seen] * np.exp(-sigma * z) + veil * (1 - np.exp(-backscatter * z))
+        colours.append(colour * rng.lognormal(0.0, 0.01, colour.shape))
+        ids.append(seen), frame_of.append(np.full(len(seen), frame)), ranges.append(z[:, 0])
+    return (np.concatenate(ids), np.concatenate(frame_of), np.concatenate(ranges),
+            np.concatenate(colours))
+
+
+def test_frame_colour_offsets_name_the_transects_range_like_pattern():
+    """Moving towards what it saw, a drift of the frames' colour is what the range does to
+    every track: one pattern of offsets the range term explains all but 1% of, which the
+    range term's misfit of the water fills with a spurious cast (0.11 in red, no cast in the
+    images); left to the range term (``min_unexplained``), the spurious cast is gone. Tracks
+    seen from all around have no such pattern, and keep every offset whatever the option."""
+    ids, frame_of, ranges, colours = _transect_tracks()
+    found = frame_colour_offsets(ids, frame_of, ranges, colours)
+    assert found.varies and found.spread[0] > 0.1
+    assert found.least_unexplained.max() < 0.01 and list(found.left_to_range) == [0, 0]
+    cast = frame_colour_offsets(ids, frame_of, ranges, colours, min_unexplained=0.02)
+    assert not cast.varies and cast.spread[0] < 0.7 * found.spread[0]
+    assert list(cast.left_to_range) == [1, 1]
+    ids, frame_of, ranges, colours, rng = _tracks_in_water()
+    balance = np.exp(rng.normal(0.0, 0.15, (14, 3)))
+    every = frame_colour_offsets(ids, frame_of, ranges, colours * balance[frame_of])
+    kept = frame_colour_offsets(ids, frame_of, ranges, colours * balance[frame_of],
+                                min_unexplained=0.02)
+    assert list(kept.left_to_range) == [0, 0] and kept.least_unexplained.min() > 0.5
+    np.testing.assert_allclose(kept.offsets, every.offsets, atol=1e-12)
+
+
+def test_frames_developed_from_raw_with_one_white_balance_never_vary(tmp_path):
+    """The ingest step develops camera RAW files with one white balance for the dataset: no
+    frame has a cast of its own, so a spread the offsets find is the range term's misfit and
+    the record says the cast does not vary (no correction, no warning); a camera's JPEGs
+    keep the verdict."""
+    from seathru.io.stored_views import one_white_balance
+
+    cameras, _ = _scene(tmp_path / "poses")
+    assert not one_white_balance(cameras)                       # no ingest manifest found
+    cameras.source = "simulated"                                # the simulator's own images
+    assert one_white_balance(cameras)
+    cameras.source = "colmap"
+    (tmp_path / "ingest").mkdir()
+    cast = frame_colour_offsets(*_transect_tracks())
+    names = [f"f{i}" for i in range(16)]
+    for kind, raw in (("raw", True), ("srgb", False), ("linear", False)):
+        (tmp_path / "ingest" / "manifest.json").write_text(json.dumps({"input": {"kind": kind}}))
+        assert one_white_balance(cameras) is raw
+        record = tracks_io._frame_colour_record(cast, names, one_white_balance(cameras))
+        assert record["varies"] is (not raw) and record["one_white_balance"] is raw
+        assert (tracks_io.frame_colour_gains({"frame_colour": record}) is None) is raw
 
 
 def test_frame_colour_offsets_need_two_frames_with_observations():

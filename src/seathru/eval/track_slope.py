@@ -285,12 +285,22 @@ class FrameColour:
             a median absolute deviation would miss).
         noise: (2,) the median frame's standard error of its offset (robust residual spread /
             sqrt of its observations): what the spread would be from noise alone.
+        left_to_range: (2,) how many patterns of offsets were left to the range term
+            (``min_unexplained`` of :func:`frame_colour_offsets`).
+        least_unexplained: (2,) the smallest share of a pattern of offsets the range term
+            leaves unexplained: 1 where the frames' casts and the ranges are independent, near
+            0 where the camera moves towards what it saw (0.7-1% on the simulated transects,
+            5% on the surveys, 60% on d3_reef, 89% and more on the orbits): there a cast
+            drifting along the path and the water's change with range look alike, and the
+            offsets along that pattern rest on the range term's shape.
     """
 
     frames: np.ndarray
     offsets: np.ndarray
     spread: np.ndarray
     noise: np.ndarray
+    left_to_range: np.ndarray
+    least_unexplained: np.ndarray
 
     @property
     def varies(self) -> bool:
@@ -302,9 +312,16 @@ class FrameColour:
 RANGE_TERMS = 4
 
 
+def range_columns(relative: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """The range term of :func:`frame_colour_offsets` (N, :data:`RANGE_TERMS`): range over the
+    median and its square, each alone and in proportion to the track's own ratio."""
+    return np.stack([relative, relative ** 2, level * relative, level * relative ** 2], axis=1)
+
+
 def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.ndarray,
                          colours: np.ndarray, *, floor: float = 1e-3, min_observations: int = 10,
-                         iterations: int = 6, huber: float = 1.345) -> FrameColour | None:
+                         iterations: int = 6, huber: float = 1.345,
+                         min_unexplained: float = 0.0) -> FrameColour | None:
     """Per-frame offsets of the colour ratios (log R/G, log B/G) along tracks: a camera's
     automatic white balance, which sets each frame's gains from what the frame shows.
 
@@ -316,7 +333,14 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
     exactly (weighted least squares within tracks; the normal equations have one unknown per
     frame), with Huber weights (``huber`` robust standard deviations) so that a few points
     placed or matched badly do not move it; the offsets are taken against the median frame.
-    The ratios leave out what a frame's exposure changes in all channels alike.
+    The ratios leave out what a frame's exposure changes in all channels alike. With
+    ``min_unexplained``, patterns of offsets that the range term explains all but that share
+    of are left to the range term (:func:`_range_free`). Not by default: on the simulated
+    transects trained on the simulator's images (no cast) it takes away spurious casts of
+    0.06-0.21, but on a transect's camera JPEGs white-balanced frame by frame it costs the red
+    cast 0.06 of its 0.18 (benchmarks/results/frame_colour.md); the datasets where the
+    spurious casts arose get no correction at all (``seathru.io.stored_views
+    .one_white_balance``).
 
     Args:
         track_ids, ranges: (N,) as for :func:`track_slope`.
@@ -326,6 +350,9 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
         min_observations: frames with fewer observations get no offset.
         iterations: rounds of reweighting (and of the tracks' own ratios).
         huber: the Huber threshold, in robust standard deviations of the residuals.
+        min_unexplained: patterns of offsets the range term leaves less of unexplained are
+            left out (0: none; 0.02 takes the one range-like pattern of the simulated
+            transects and keeps every other pattern seen).
 
     Returns:
         :class:`FrameColour`, or None with fewer than two frames of ``min_observations``.
@@ -367,14 +394,14 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
     target = centred(ratios)
     own = ratios - target                  # each observation's track's mean ratios
     offsets, residual = np.zeros((count, 2)), np.zeros_like(target)
+    left_out, least = np.zeros(2, int), np.ones(2)
     for ratio in range(2):
         intrinsic = own[:, ratio]
         weights = np.ones(len(rows))
         for _ in range(iterations):
             level = intrinsic - np.median(intrinsic)
             design = sparse.hstack([
-                centred(np.stack([relative, relative ** 2, level * relative,
-                                  level * relative ** 2], axis=1)),
+                centred(range_columns(relative, level)),
                 offset_columns]).tocsr()
             solution = _weighted_solve(design, target[:, ratio], weights)
             residual[:, ratio] = target[:, ratio] - design @ solution
@@ -382,12 +409,43 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
             # the track's own ratio without its frames' offsets
             shifted = ratios[:, ratio] - solution[RANGE_TERMS + columns]
             intrinsic = shifted - centred(shifted[:, None])[:, 0]
-        offsets[:, ratio] = solution[RANGE_TERMS:]
+        normal = (design.T @ sparse.diags(weights) @ design).toarray()
+        offsets[:, ratio], left_out[ratio], least[ratio] = _range_free(
+            normal, solution[RANGE_TERMS:], min_unexplained)
     offsets -= np.median(offsets, axis=0)
     spread = np.sqrt(np.mean(offsets ** 2, axis=0))
     noise = np.median([1.4826 * np.median(np.abs(residual[columns == k]), axis=0)
                        / np.sqrt(counts[kept[k]]) for k in range(count)], axis=0)
-    return FrameColour(frame_ids[kept], offsets, spread, noise)
+    return FrameColour(frame_ids[kept], offsets, spread, noise, left_out, least)
+
+
+def _range_free(normal: np.ndarray, offsets: np.ndarray, min_unexplained: float
+                ) -> tuple[np.ndarray, int, float]:
+    """``offsets`` (F,) without their parts along the patterns the range term explains all but
+    ``min_unexplained`` of; those patterns' count; the least share unexplained.
+
+    ``normal``: the weighted normal matrix of the design, the :data:`RANGE_TERMS` range
+    columns first. A pattern's share unexplained is its generalised eigenvalue of the offsets'
+    Schur complement (what the range columns cannot fit) against their own block, over the
+    offsets that sum to zero (the rows fix them only up to a common shift); projected out
+    along the block's metric, so that the fit's other offsets keep their values.
+    """
+    from scipy.linalg import eigh
+
+    terms, count = RANGE_TERMS, len(offsets)
+    if count < 3:
+        return offsets, 0, 1.0
+    own = normal[terms:, terms:]
+    cross = normal[:terms, terms:]
+    explained = cross.T @ np.linalg.pinv(normal[:terms, :terms]) @ cross
+    sums_to_zero = np.linalg.qr(np.c_[np.ones(count), np.eye(count)[:, :-1]])[0][:, 1:]
+    metric = sums_to_zero.T @ own @ sums_to_zero
+    metric += 1e-9 * max(float(np.trace(metric)) / count, 1e-12) * np.eye(count - 1)
+    shares, vectors = eigh(sums_to_zero.T @ (own - explained) @ sums_to_zero, metric)
+    low = shares < min_unexplained
+    patterns = sums_to_zero @ vectors[:, low]         # own-orthonormal
+    return (offsets - patterns @ (patterns.T @ own @ offsets), int(low.sum()),
+            float(shares.min()))
 
 
 def _weighted_solve(design, target: np.ndarray, weights: np.ndarray) -> np.ndarray:

@@ -78,6 +78,22 @@ def ingest_folder_of(cameras: CameraSet) -> Path:
     return root.parent / "ingest"
 
 
+def one_white_balance(cameras: CameraSet) -> bool:
+    """Whether every frame of the camera file was developed with one white balance: the
+    ingest step decoded camera RAW files itself, with one balance for the dataset
+    (``seathru.radiometry.dataset_transform``), so no frame carries a colour cast of its own
+    (a camera's automatic white balance lives in its JPEGs and videos), or the camera file is
+    the simulator's own (its linear images: no camera between). False where the ingest
+    manifest is not found."""
+    if cameras.source == "simulated":
+        return True
+    path = ingest_folder_of(cameras) / "manifest.json"
+    if not path.is_file():
+        return False
+    manifest = read_manifest(path, strict=False)
+    return isinstance(manifest, dict) and (manifest.get("input") or {}).get("kind") == "raw"
+
+
 def read_stored_views(ingest: Path) -> dict[str, StoredView]:
     """Every image of an ingest output's ``manifest.json``, by name.
 

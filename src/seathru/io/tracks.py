@@ -27,6 +27,7 @@ from seathru.io import renders as renders_io
 from seathru.io.cameras import CameraSet
 from seathru.io.colmap import read_model
 from seathru.io.images import read_image, read_mask
+from seathru.io.stored_views import one_white_balance
 from seathru.radiometry.glare import GlareCorrection
 
 log = logging.getLogger(__name__)
@@ -405,7 +406,8 @@ def track_colour_slope(cameras: CameraSet, model_path: Path, threads: int | None
             result["all_views"]["near_open_water"] = beside
     cast = frame_colour_offsets(obs.track_ids, obs.frames, obs.ranges, observed)
     if cast is not None:
-        result["frame_colour"] = _frame_colour_record(cast, obs.names)
+        result["frame_colour"] = _frame_colour_record(cast, obs.names,
+                                                      one_white_balance(cameras))
     headline = result.get("all_views", {})
     if "reduction" in headline:
         log.info("track colour slope (log colour per unit range, R G B): input %s, full render "
@@ -502,17 +504,23 @@ def input_colour_change(cameras: CameraSet, max_points: int = 5000,
     cast = frame_colour_offsets(obs.track_ids[train], obs.frames[train], obs.ranges[train],
                                 windows.observed[train])
     if cast is not None:
-        result["frame_colour"] = _frame_colour_record(cast, obs.names)
+        result["frame_colour"] = _frame_colour_record(cast, obs.names,
+                                                      one_white_balance(cameras))
     return result
 
 
-def _frame_colour_record(cast, names: list[str]) -> dict:
-    """A ``seathru.eval.track_slope.FrameColour`` as JSON, offsets by frame name."""
+def _frame_colour_record(cast, names: list[str], one_balance: bool) -> dict:
+    """A ``seathru.eval.track_slope.FrameColour`` as JSON, offsets by frame name; with
+    ``one_balance`` (``seathru.io.stored_views.one_white_balance``) it never varies: what it
+    found is the water's change with range that the range term missed, not a cast."""
     from seathru.eval.track_slope import FRAME_COLOUR_SPREAD
 
     return {"ratios": ["log red / green", "log blue / green"], "spread": cast.spread.tolist(),
-            "noise": cast.noise.tolist(), "varies": cast.varies,
+            "noise": cast.noise.tolist(), "varies": cast.varies and not one_balance,
+            "one_white_balance": one_balance,
             "threshold": FRAME_COLOUR_SPREAD,
+            "left_to_range": cast.left_to_range.tolist(),
+            "least_unexplained": cast.least_unexplained.tolist(),
             "offsets": {names[int(f)]: o.tolist() for f, o in zip(cast.frames, cast.offsets)}}
 
 

@@ -325,7 +325,8 @@ class TrainConfig:
         "auto", help="auto: where the training photographs' colour casts differ from frame to "
                      "frame beyond what the points and their ranges explain along COLMAP "
                      "tracks (a camera's auto white balance), train on each brought to the "
-                     "median frame's (seathru.eval.track_slope.frame_colour_offsets); off: as "
+                     "median frame's (seathru.eval.track_slope.frame_colour_offsets; never for "
+                     "camera RAW, which ingest develops with one white balance); off: as "
                      "they are")
     steps: int = setting(0, help="maximum optimisation steps; 0: no step limit under a time "
                                  "budget (max_minutes decides), 6000 without one")
