@@ -34,9 +34,10 @@ DIVES = {
     "orbit": f"{BALANCED}; simulate.path=orbit",
     "survey_plain_jpeg": "ingest.images=jpeg",
     "transect_plain_jpeg": "ingest.images=jpeg; simulate.path=transect",
+    "transect_turbid_plain_jpeg": "ingest.images=jpeg; simulate.path=transect; "
+                                  "simulate.water=turbid",
 }
-#: The alternative arm: range-like patterns of offsets left to the range term.
-LEFT_TO_RANGE = 0.02
+
 
 
 def run_poses(work: Path, cores: int) -> None:
@@ -94,28 +95,23 @@ def _pair(values) -> str:
 def dive_row(work: Path, name: str) -> str:
     root = work / "results" / name
     if not (root / "poses" / "cameras.json").is_file():
-        return f"| {name} | no poses (see {work}/logs/{name}) |" + " |" * 8
+        return f"| {name} | no poses (see {work}/logs/{name}) |" + " |" * 7
     cast, names = found_offsets(root)
-    every, _ = found_offsets(root, min_unexplained=LEFT_TO_RANGE)
-    varies = "yes" if cast.varies else "no"
-    left = f"{_pair(cast.least_unexplained)}"
-    varies_every = f"{'yes' if every.varies else 'no'} ({', '.join(map(str, every.left_to_range))})"
+    before, _ = found_offsets(root, range_like=0.0)
+    verdicts = " | ".join("yes" if c.varies else "no" for c in (cast, before))
+    free = f"{_pair(cast.range_free_spread)} | {_pair(cast.least_unexplained)}"
     if name == "reef":
-        return (f"| reef (d3_reef, no truth) | - | {_pair(cast.spread)} | - | - | {varies} | "
-                f"{left} | {_pair(every.spread)} | - | {varies_every} |")
+        return (f"| reef (d3_reef, no truth) | - | {_pair(cast.spread)} | - | - | {free} | "
+                f"{verdicts} |")
     truth = true_offsets(root)
     on_frames = np.array([truth[Path(names[int(f)]).stem] for f in cast.frames])
     on_frames -= np.median(on_frames, axis=0)
     spread = np.sqrt(np.mean(on_frames ** 2, axis=0))       # as FrameColour.spread
-    errors = []
-    for found in (cast, every):
-        error = found.offsets - on_frames
-        errors.append(error - np.median(error, axis=0))
+    error = cast.offsets - on_frames
+    error -= np.median(error, axis=0)
     return (f"| {name} | {_pair(spread)} | {_pair(cast.spread)} | "
-            f"{_pair(np.sqrt((errors[0] ** 2).mean(axis=0)))} | "
-            f"{_pair(np.abs(errors[0]).max(axis=0))} | {varies} | {left} | "
-            f"{_pair(every.spread)} | {_pair(np.sqrt((errors[1] ** 2).mean(axis=0)))} | "
-            f"{varies_every} |")
+            f"{_pair(np.sqrt((error ** 2).mean(axis=0)))} | {_pair(np.abs(error).max(axis=0))} "
+            f"| {free} | {verdicts} |")
 
 
 def main() -> None:
@@ -133,15 +129,15 @@ def main() -> None:
         "Errors in log red / green, blue / green, both sides against their median frame; "
         "spread: the root mean square of the true casts and of those found over the training "
         "frames, against the median frame; varies: judged to vary (the train step corrects "
-        "it). `survey_plain_jpeg`, `transect_plain_jpeg`: no white balance (the true casts "
-        "are all zero). Least unexplained: the smallest share of a pattern of offsets the "
-        "range term leaves unexplained, red and blue ratio (`FrameColour.least_unexplained`); "
-        f"the last three columns: the same fit with `min_unexplained={LEFT_TO_RANGE}`, the "
-        "patterns under that share left to the range term (how many in brackets).",
-        "",
-        "| dive | true spread | spread found | error: rms | largest | varies | least "
-        f"unexplained | left to range ({LEFT_TO_RANGE}): spread | error: rms | varies |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "it). `survey_plain_jpeg`, `transect_plain_jpeg`, `transect_turbid_plain_jpeg`: no "
+        "white balance (the true casts are all zero). Range-free spread: the spread of the "
+        "offsets without their range-like patterns (those the range term explains all but "
+        "`FRAME_COLOUR_RANGE_LIKE` of), which decides whether the cast varies; least "
+        "unexplained: the smallest share of a pattern of offsets the range term leaves "
+        "unexplained; varies before: decided on the whole spread, as before session 46.", "",
+        "| dive | true spread | spread found | error: rms | largest | range-free spread | "
+        "least unexplained | varies | varies before |",
+        "|---|---|---|---|---|---|---|---|---|",
         *(dive_row(args.work, name) for name in names), "",
         footer(load_before, start),
     ]

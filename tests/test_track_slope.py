@@ -578,15 +578,18 @@ def test_frame_colour_offsets_follow_a_drift_along_the_camera_path():
     assert np.sqrt((error ** 2).mean()) < 0.01 and np.abs(error).max() < 0.03
 
 
-def _transect_tracks(frames: int = 16, points: int = 1500, seed: int = 0):
+TURBID = ((1.1, 0.66, 0.75), (0.5, 0.6, 0.7), (0.04, 0.22, 0.2))   # attenuation, backscatter,
+DEFAULT = ((0.55, 0.25, 0.2), (0.45, 0.3, 0.25), (0.04, 0.2, 0.3))  # veiling light per channel
+
+
+def _transect_tracks(frames: int = 16, points: int = 1500, seed: int = 0, water=TURBID):
     """A camera moving forward 1.5 m above the seabed, seeing each point from 4 m ahead to
-    0.5 m ahead, through turbid water, with no colour cast: the later a frame sees a point,
-    the nearer it is, in every track alike."""
+    0.5 m ahead, through ``water``, with no colour cast: the later a frame sees a point, the
+    nearer it is, in every track alike."""
     rng = np.random.default_rng(seed)
     along = rng.uniform(0.0, frames * 0.5 + 4.0, points)
     surface = rng.uniform(0.05, 0.8, (points, 3))
-    sigma, backscatter, veil = np.array([1.1, 0.66, 0.75]), np.array([0.5, 0.6, 0.7]), \
-        np.array([0.04, 0.22, 0.2])
+    sigma, backscatter, veil = (np.array(v) for v in water)
     ids, frame_of, ranges, colours = [], [], [], []
     for frame in range(frames):
         ahead = along - frame * 0.5
@@ -599,26 +602,32 @@ def _transect_tracks(frames: int = 16, points: int = 1500, seed: int = 0):
             np.concatenate(colours))
 
 
-def test_frame_colour_offsets_name_the_transects_range_like_pattern():
+def test_a_transects_range_like_pattern_does_not_make_a_cast_vary():
     """Moving towards what it saw, a drift of the frames' colour is what the range does to
     every track: one pattern of offsets the range term explains all but 1% of, which the
-    range term's misfit of the water fills with a spurious cast (0.11 in red, no cast in the
-    images); left to the range term (``min_unexplained``), the spurious cast is gone. Tracks
-    seen from all around have no such pattern, and keep every offset whatever the option."""
+    range term's misfit of turbid water fills with a cast no camera made (0.11 in red). It
+    does not count towards whether the cast varies (it did before: ``range_like=0``); where
+    the camera white-balanced every frame, the cast varies and the offsets, that pattern
+    included, follow it. Tracks seen from all around have no range-like pattern."""
     ids, frame_of, ranges, colours = _transect_tracks()
     found = frame_colour_offsets(ids, frame_of, ranges, colours)
-    assert found.varies and found.spread[0] > 0.1
-    assert found.least_unexplained.max() < 0.01 and list(found.left_to_range) == [0, 0]
-    cast = frame_colour_offsets(ids, frame_of, ranges, colours, min_unexplained=0.02)
-    assert not cast.varies and cast.spread[0] < 0.7 * found.spread[0]
-    assert list(cast.left_to_range) == [1, 1]
+    assert found.spread[0] > 0.1 and found.range_free_spread.max() < 0.08
+    assert not found.varies and list(found.range_like) == [1, 1]
+    assert found.least_unexplained.max() < 0.01
+    assert frame_colour_offsets(ids, frame_of, ranges, colours, range_like=0.0).varies
+    ids, frame_of, ranges, colours = _transect_tracks(water=DEFAULT)
+    balance = np.exp(np.random.default_rng(5).normal(0.0, 0.15, (16, 3)))
+    cast = frame_colour_offsets(ids, frame_of, ranges, colours * balance[frame_of])
+    injected = np.log(balance[:, [0, 2]] / balance[:, [1]])
+    error = cast.offsets - injected
+    assert cast.varies and np.sqrt(((error - np.median(error, 0)) ** 2).mean()) < 0.02
     ids, frame_of, ranges, colours, rng = _tracks_in_water()
     balance = np.exp(rng.normal(0.0, 0.15, (14, 3)))
-    every = frame_colour_offsets(ids, frame_of, ranges, colours * balance[frame_of])
-    kept = frame_colour_offsets(ids, frame_of, ranges, colours * balance[frame_of],
-                                min_unexplained=0.02)
-    assert list(kept.left_to_range) == [0, 0] and kept.least_unexplained.min() > 0.5
-    np.testing.assert_allclose(kept.offsets, every.offsets, atol=1e-12)
+    kept = frame_colour_offsets(ids, frame_of, ranges, colours * balance[frame_of])
+    every = frame_colour_offsets(ids, frame_of, ranges, colours * balance[frame_of],
+                                 range_like=0.0)
+    assert list(kept.range_like) == [0, 0] and kept.least_unexplained.min() > 0.5
+    np.testing.assert_allclose(kept.range_free_spread, every.spread, atol=1e-12)
 
 
 def test_frames_developed_from_raw_with_one_white_balance_never_vary(tmp_path):
@@ -634,7 +643,7 @@ def test_frames_developed_from_raw_with_one_white_balance_never_vary(tmp_path):
     assert one_white_balance(cameras)
     cameras.source = "colmap"
     (tmp_path / "ingest").mkdir()
-    cast = frame_colour_offsets(*_transect_tracks())
+    cast = frame_colour_offsets(*_transect_tracks(), range_like=0.0)    # a cast that varies
     names = [f"f{i}" for i in range(16)]
     for kind, raw in (("raw", True), ("srgb", False), ("linear", False)):
         (tmp_path / "ingest" / "manifest.json").write_text(json.dumps({"input": {"kind": kind}}))

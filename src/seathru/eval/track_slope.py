@@ -269,6 +269,10 @@ def _record(fit: TrackSlope) -> dict:
 #: photographs brought to one cast improved neither the held-out PSNR nor the slope reduction
 #: (benchmarks/results/frame_colour.md, camera_jpeg.md).
 FRAME_COLOUR_SPREAD = 0.08
+#: Patterns of offsets that the range term explains all but this share of do not count towards
+#: whether the cast varies (:attr:`FrameColour.range_free_spread`): 0.7-1% on the simulated
+#: transects, 5% on the surveys, 60% on d3_reef, 89% and more on the orbits.
+FRAME_COLOUR_RANGE_LIKE = 0.02
 
 
 @dataclass(frozen=True)
@@ -285,8 +289,10 @@ class FrameColour:
             a median absolute deviation would miss).
         noise: (2,) the median frame's standard error of its offset (robust residual spread /
             sqrt of its observations): what the spread would be from noise alone.
-        left_to_range: (2,) how many patterns of offsets were left to the range term
-            (``min_unexplained`` of :func:`frame_colour_offsets`).
+        range_free_spread: (2,) the spread of the offsets without their parts along the
+            range-like patterns (``range_like`` of :func:`frame_colour_offsets`): what decides
+            whether the cast varies.
+        range_like: (2,) how many patterns of offsets were range-like.
         least_unexplained: (2,) the smallest share of a pattern of offsets the range term
             leaves unexplained: 1 where the frames' casts and the ranges are independent, near
             0 where the camera moves towards what it saw (0.7-1% on the simulated transects,
@@ -299,13 +305,16 @@ class FrameColour:
     offsets: np.ndarray
     spread: np.ndarray
     noise: np.ndarray
-    left_to_range: np.ndarray
+    range_free_spread: np.ndarray
+    range_like: np.ndarray
     least_unexplained: np.ndarray
 
     @property
     def varies(self) -> bool:
-        """Whether the colour cast changes from frame to frame (:data:`FRAME_COLOUR_SPREAD`)."""
-        return bool(np.max(self.spread) > max(FRAME_COLOUR_SPREAD, 3 * float(np.max(self.noise))))
+        """Whether the colour cast changes from frame to frame: the range-free spread above
+        :data:`FRAME_COLOUR_SPREAD` (and three times the noise)."""
+        return bool(np.max(self.range_free_spread)
+                    > max(FRAME_COLOUR_SPREAD, 3 * float(np.max(self.noise))))
 
 
 #: Unknowns of the range term in frame_colour_offsets' equations, before the offsets.
@@ -321,7 +330,7 @@ def range_columns(relative: np.ndarray, level: np.ndarray) -> np.ndarray:
 def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.ndarray,
                          colours: np.ndarray, *, floor: float = 1e-3, min_observations: int = 10,
                          iterations: int = 6, huber: float = 1.345,
-                         min_unexplained: float = 0.0) -> FrameColour | None:
+                         range_like: float = FRAME_COLOUR_RANGE_LIKE) -> FrameColour | None:
     """Per-frame offsets of the colour ratios (log R/G, log B/G) along tracks: a camera's
     automatic white balance, which sets each frame's gains from what the frame shows.
 
@@ -333,14 +342,16 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
     exactly (weighted least squares within tracks; the normal equations have one unknown per
     frame), with Huber weights (``huber`` robust standard deviations) so that a few points
     placed or matched badly do not move it; the offsets are taken against the median frame.
-    The ratios leave out what a frame's exposure changes in all channels alike. With
-    ``min_unexplained``, patterns of offsets that the range term explains all but that share
-    of are left to the range term (:func:`_range_free`). Not by default: on the simulated
-    transects trained on the simulator's images (no cast) it takes away spurious casts of
-    0.06-0.21, but on a transect's camera JPEGs white-balanced frame by frame it costs the red
-    cast 0.06 of its 0.18 (benchmarks/results/frame_colour.md); the datasets where the
-    spurious casts arose get no correction at all (``seathru.io.stored_views
-    .one_white_balance``).
+    The ratios leave out what a frame's exposure changes in all channels alike.
+
+    Whether the cast varies is decided without the patterns of offsets that the range term
+    explains all but ``range_like`` of (:func:`_range_free`): where the camera moves towards
+    what it saw, a drift along the path changes each track's colour as its range does, and the
+    range term's misfit of the water fills it with a cast no camera made (0.094 in red on a
+    turbid transect's plain JPEGs, none with the range-like pattern left out). The offsets
+    themselves keep that pattern: where the rest shows a camera's cast, its drift along the
+    path is as likely to be the camera's (a transect's JPEGs white-balanced frame by frame:
+    red found within 0.006 with it, 0.062 without; benchmarks/results/frame_colour.md).
 
     Args:
         track_ids, ranges: (N,) as for :func:`track_slope`.
@@ -350,9 +361,8 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
         min_observations: frames with fewer observations get no offset.
         iterations: rounds of reweighting (and of the tracks' own ratios).
         huber: the Huber threshold, in robust standard deviations of the residuals.
-        min_unexplained: patterns of offsets the range term leaves less of unexplained are
-            left out (0: none; 0.02 takes the one range-like pattern of the simulated
-            transects and keeps every other pattern seen).
+        range_like: patterns of offsets the range term leaves less of unexplained do not
+            count towards whether the cast varies (0: every pattern counts).
 
     Returns:
         :class:`FrameColour`, or None with fewer than two frames of ``min_observations``.
@@ -394,7 +404,7 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
     target = centred(ratios)
     own = ratios - target                  # each observation's track's mean ratios
     offsets, residual = np.zeros((count, 2)), np.zeros_like(target)
-    left_out, least = np.zeros(2, int), np.ones(2)
+    free, counted, least = np.zeros((count, 2)), np.zeros(2, int), np.ones(2)
     for ratio in range(2):
         intrinsic = own[:, ratio]
         weights = np.ones(len(rows))
@@ -409,20 +419,23 @@ def frame_colour_offsets(track_ids: np.ndarray, frames: np.ndarray, ranges: np.n
             # the track's own ratio without its frames' offsets
             shifted = ratios[:, ratio] - solution[RANGE_TERMS + columns]
             intrinsic = shifted - centred(shifted[:, None])[:, 0]
+        offsets[:, ratio] = solution[RANGE_TERMS:]
         normal = (design.T @ sparse.diags(weights) @ design).toarray()
-        offsets[:, ratio], left_out[ratio], least[ratio] = _range_free(
-            normal, solution[RANGE_TERMS:], min_unexplained)
+        free[:, ratio], counted[ratio], least[ratio] = _range_free(
+            normal, offsets[:, ratio], range_like)
     offsets -= np.median(offsets, axis=0)
+    free -= np.median(free, axis=0)
     spread = np.sqrt(np.mean(offsets ** 2, axis=0))
     noise = np.median([1.4826 * np.median(np.abs(residual[columns == k]), axis=0)
                        / np.sqrt(counts[kept[k]]) for k in range(count)], axis=0)
-    return FrameColour(frame_ids[kept], offsets, spread, noise, left_out, least)
+    return FrameColour(frame_ids[kept], offsets, spread, noise,
+                       np.sqrt(np.mean(free ** 2, axis=0)), counted, least)
 
 
-def _range_free(normal: np.ndarray, offsets: np.ndarray, min_unexplained: float
+def _range_free(normal: np.ndarray, offsets: np.ndarray, range_like: float
                 ) -> tuple[np.ndarray, int, float]:
     """``offsets`` (F,) without their parts along the patterns the range term explains all but
-    ``min_unexplained`` of; those patterns' count; the least share unexplained.
+    ``range_like`` of; those patterns' count; the least share unexplained.
 
     ``normal``: the weighted normal matrix of the design, the :data:`RANGE_TERMS` range
     columns first. A pattern's share unexplained is its generalised eigenvalue of the offsets'
@@ -442,7 +455,7 @@ def _range_free(normal: np.ndarray, offsets: np.ndarray, min_unexplained: float
     metric = sums_to_zero.T @ own @ sums_to_zero
     metric += 1e-9 * max(float(np.trace(metric)) / count, 1e-12) * np.eye(count - 1)
     shares, vectors = eigh(sums_to_zero.T @ (own - explained) @ sums_to_zero, metric)
-    low = shares < min_unexplained
+    low = shares < range_like
     patterns = sums_to_zero @ vectors[:, low]         # own-orthonormal
     return (offsets - patterns @ (patterns.T @ own @ offsets), int(low.sum()),
             float(shares.min()))

@@ -519,7 +519,7 @@ def _frame_colour_record(cast, names: list[str], one_balance: bool) -> dict:
             "noise": cast.noise.tolist(), "varies": cast.varies and not one_balance,
             "one_white_balance": one_balance,
             "threshold": FRAME_COLOUR_SPREAD,
-            "left_to_range": cast.left_to_range.tolist(),
+            "range_free_spread": cast.range_free_spread.tolist(),
             "least_unexplained": cast.least_unexplained.tolist(),
             "offsets": {names[int(f)]: o.tolist() for f, o in zip(cast.frames, cast.offsets)}}
 
