@@ -317,8 +317,9 @@ def export_poses(poses_dir: Path, out: Path, image_format: str = "png") -> dict:
         llff_problem = llff_camera_problem(cameras)
         if llff_problem is None:
             png = {name: f"{name}.png" for name in names}
-            write_llff(cameras, tmp / "seathru_nerf", None if points is None else
-                       colmap_reconstruction(cameras, png, xyz, rgb, seen=seen))
+            llff_model = model if png == names else colmap_reconstruction(cameras, png, xyz,
+                                                                           rgb, seen=seen)
+            write_llff(cameras, tmp / "seathru_nerf", None if points is None else llff_model)
     return {"frames": len(cameras.frames), "points": 0 if points is None else len(points[0]),
             "nerfstudio": str(out / "nerfstudio" / "transforms.json"),
             "colmap": str(out / "colmap" / "sparse" / "0"),
