@@ -142,6 +142,25 @@ def test_a_confirmed_model_is_set_aside_where_a_disagreeing_one_fits_far_better(
     assert confirmed_run(close, {}, QualityGate(), "sequential", compare) is close[0]
 
 
+def test_the_other_matchers_models_agreeing_outweigh_the_users_that_agree_with_nothing():
+    """A turbid transect (simulated, seed 3): the sequential matcher's two mappers 166 degrees
+    apart and each 17 degrees from the exhaustive matcher's two, which agree with each other
+    and with the truth (0.07% of the extent, 0.3 degrees); the dataset failed before."""
+    agree = {"common_images": 24, "max_centre_deviation": 0.001, "max_rotation_deviation_deg": 0.1}
+    apart = {"common_images": 24, "max_centre_deviation": 0.14, "max_rotation_deviation_deg": 17.5}
+    runs = _runs(("sequential", "incremental", True, 0.46), ("sequential", "global", True, 0.234),
+                 ("exhaustive", "incremental", True, 0.225))
+
+    def compare(a, b):
+        return agree if a.startswith("exhaustive") and b.startswith("exhaustive") else apart
+
+    comparisons: dict = {}
+    assert confirmed_run(runs, comparisons, QualityGate(), "sequential", compare) is None
+    runs += _runs(("exhaustive", "global", True, 0.222))
+    chosen = confirmed_run(runs, comparisons, QualityGate(), "sequential", compare)
+    assert chosen is runs[2] and "confirmed by attempt 4" in chosen.attempt.note
+
+
 def test_unconfirmed_keeps_the_lowest_error_candidate_and_marks_it():
     runs = _runs(("sequential", "incremental", True, 0.6), ("sequential", "global", True, 0.2),
                  ("exhaustive", "incremental", True, 0.1))

@@ -123,9 +123,15 @@ def test_good_datasets_finish_and_the_bad_one_fails_clearly(finished_collection)
     cameras = read_cameras(workdir / "results" / "sim_water" / "poses" / "cameras.json")
     assert all(f.blur_px is not None and f.blur_px[0] > f.blur_px[1] > 0 for f in cameras.frames)
     assert "blur taken out" in (workdir / "logs" / "sim_water" / "train.log").read_text()
-    refits = json.loads((workdir / "results" / "sim_water" / "train" / "selection.json")
-                        .read_text())["water_refits"]
+    selection = json.loads((workdir / "results" / "sim_water" / "train" / "selection.json")
+                           .read_text())
+    refits = selection["water_refits"]
     assert refits and all(r["colours"] == "deblurred" for r in refits)
+    # the RAW files were developed with one white balance: no frame has a cast to correct
+    change = (selection.get("statistics") or {}).get("track_colour_change") or {}
+    cast = change.get("frame_colour")
+    assert cast is None or (cast["one_white_balance"] and not cast["varies"])
+    assert selection["frame_colour_correction"] is None
     log = (workdir / "logs" / "bad_raw" / "ingest.log").read_text()
     assert re.search(r"seathru ingest: error: .*usable image", log), log[-2000:]
     assert not (workdir / "results" / "bad_raw" / "ingest").exists()

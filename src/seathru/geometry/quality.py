@@ -229,8 +229,11 @@ def confirmed_run(runs: list[SfmRun], comparisons: dict[tuple[int, int], dict | 
     """The earliest candidate that an independent gate-passing model agrees with and no
     gate-passing model outdoes (:meth:`QualityGate.outdoes`, disagreeing with it).
 
-    Candidates are the gate-passing runs on the user's ``matcher`` (for ordered dive sets the
-    sequential matches hold fewer false pairs), or any gate-passing run when none is.
+    Candidates are the gate-passing runs on the user's ``matcher`` first (for ordered dive
+    sets the sequential matches hold fewer false pairs), then the other gate-passing runs: the
+    other matcher's two models agreeing with each other outweigh the user's matcher's that
+    agree with nothing (a turbid transect: the sequential matcher's two mappers 166 degrees
+    apart and each 17 degrees from the exhaustive matcher's, which agreed).
     ``comparisons`` caches ``compare(model_i, model_j)`` (see :func:`pose_agreement`) by run
     indices ``(i, j)``, ``i < j``; each new comparison is also recorded on run ``j``'s attempt.
     The confirmed attempt gets its ``agreement`` and ``note``; one set aside, its ``note``.
@@ -248,7 +251,8 @@ def confirmed_run(runs: list[SfmRun], comparisons: dict[tuple[int, int], dict | 
                             describe_agreement(found))
         return comparisons[(i, j)]
 
-    for candidate in _candidates(runs, matcher):
+    own = _candidates(runs, matcher)
+    for candidate in own + [run for run in passed if run not in own]:
         rival = next((run for run in passed if run is not candidate
                       and gate.outdoes(run.attempt, candidate.attempt)
                       and not gate.agree(agreement(candidate, run))), None)

@@ -257,8 +257,8 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
     still be wrong when repeated texture produces consistent false matches, and both mappers
     fail that way at times. Models built on the user's matcher are the candidates (for ordered
     dive sets the sequential matches hold fewer false pairs); the other matcher's models serve
-    as witnesses, and become candidates only when no model on the user's matcher passes the
-    gate; where the first attempt registers nothing and the matched features hardly move
+    as witnesses, and become candidates when no model on the user's matcher is confirmed
+    (``seathru.geometry.quality.confirmed_run``); where the first attempt registers nothing and the matched features hardly move
     between photographs (:func:`largest_pair_shift` below ``STILL_SHIFT``: taken from one
     place), nothing else is tried. Among confirmed candidates the one tried first wins, unless
     a gate-passing model that disagrees with it has a ``gate.rival_error_ratio`` times lower
