@@ -133,6 +133,12 @@ def test_a_colour_cast_that_changes_between_frames_warns_with_its_spread():
     [warning] = evaluation_warnings(summary)
     assert "trained on the photographs brought to the median frame's cast" in warning["message"]
     assert warning["details"]["corrected"] is True
+    assert not warning["details"]["drift_along_the_path"] and "transect" not in \
+        warning["message"]
+    summary.track_colour_slope["frame_colour"]["least_unexplained"] = [0.009, 0.010]
+    [warning] = evaluation_warnings(summary)        # a transect: the drift is the water's too
+    assert warning["details"]["drift_along_the_path"] and "cannot be told from the water" in \
+        warning["message"]
     summary.track_colour_slope["frame_colour"].update(spread=[0.038, 0.038], varies=False)
     assert evaluation_warnings(summary) == []                 # d3_reef's reading
 

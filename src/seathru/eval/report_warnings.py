@@ -18,6 +18,7 @@ import pandas as pd
 from seathru.eval.report_records import finite_number
 from seathru.eval.report_tracks import slope_part
 from seathru.eval.summary import EvaluationSummary
+from seathru.eval.track_slope import FRAME_COLOUR_RANGE_LIKE
 from seathru.radiometry.glare import brighter_near_open_water
 
 
@@ -233,14 +234,21 @@ def _frame_colour_warning(summary: EvaluationSummary | None) -> list[dict]:
                "No water model follows it, so the fitted water is off, possibly more than its "
                "intervals say (the simulated survey white-balanced frame by frame: up to 33% "
                "off, three intervals missing the truth)")
+    least = [finite_number(v) for v in cast.get("least_unexplained") or []]
+    along = any(v is not None and v < FRAME_COLOUR_RANGE_LIKE for v in least)
+    path = (" The camera moved towards what it had seen (a transect): the part of the cast "
+            "that drifts along the path changes every point's colour as its range does, so "
+            "it cannot be told from the water, and the attenuation rests on how it was "
+            "split." if along else "")
     message = (f"the photographs' colour cast changes from frame to frame beyond what the "
                f"points and their ranges explain: red and blue against green vary by {spread} "
                f"between frames (root mean square{example}), as a camera's automatic "
-               f"white balance makes them. {trained}. Shoot RAW, or set the white balance by "
-               f"hand for the dive.")
+               f"white balance makes them. {trained}.{path} Shoot RAW, or set the white "
+               f"balance by hand for the dive.")
     return [_warning("colour_varies_between_frames", message, step="evaluate",
                      spread=cast.get("spread"), noise=cast.get("noise"),
-                     threshold=cast.get("threshold"), corrected=corrected)]
+                     threshold=cast.get("threshold"), corrected=corrected,
+                     drift_along_the_path=along)]
 
 
 def _brighter_warning(summary: EvaluationSummary | None) -> list[dict]:
