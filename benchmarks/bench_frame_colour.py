@@ -31,6 +31,7 @@ DIVES = {
     "survey_seed2": f"{BALANCED}; simulate.seed=2",
     "survey_turbid": f"{BALANCED}; simulate.water=turbid",
     "transect": f"{BALANCED}; simulate.path=transect",
+    "transect_turbid": f"{BALANCED}; simulate.path=transect; simulate.water=turbid",
     "orbit": f"{BALANCED}; simulate.path=orbit",
     "survey_plain_jpeg": "ingest.images=jpeg",
     "transect_plain_jpeg": "ingest.images=jpeg; simulate.path=transect",
