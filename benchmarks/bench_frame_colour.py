@@ -73,10 +73,10 @@ def true_offsets(root: Path) -> dict[str, np.ndarray]:
     return offsets
 
 
-def found_offsets(root: Path, **options):
+def found_offsets(root: Path):
     """The training frames' casts as the train step finds them
-    (``seathru.io.tracks.input_colour_change``; ``options`` for ``frame_colour_offsets``) and
-    the frames' names."""
+    (``seathru.io.tracks.input_colour_change``), the same decided on every pattern of offsets
+    (``range_like=0``, as before session 46), and the frames' names."""
     from seathru.eval.track_slope import frame_colour_offsets
     from seathru.io import tracks
     from seathru.io.cameras import read_cameras
@@ -85,8 +85,10 @@ def found_offsets(root: Path, **options):
     obs = tracks.track_observations(cameras, cameras.root / tracks.SPARSE_DIR)
     windows = tracks.track_windows(cameras, obs)
     train = ~obs.held_out
-    return frame_colour_offsets(obs.track_ids[train], obs.frames[train], obs.ranges[train],
-                                windows.observed[train], **options), obs.names
+    args = (obs.track_ids[train], obs.frames[train], obs.ranges[train],
+            windows.observed[train])
+    return (frame_colour_offsets(*args), frame_colour_offsets(*args, range_like=0.0),
+            obs.names)
 
 
 def _pair(values) -> str:
@@ -97,8 +99,7 @@ def dive_row(work: Path, name: str) -> str:
     root = work / "results" / name
     if not (root / "poses" / "cameras.json").is_file():
         return f"| {name} | no poses (see {work}/logs/{name}) |" + " |" * 7
-    cast, names = found_offsets(root)
-    before, _ = found_offsets(root, range_like=0.0)
+    cast, before, names = found_offsets(root)
     verdicts = " | ".join("yes" if c.varies else "no" for c in (cast, before))
     free = f"{_pair(cast.range_free_spread)} | {_pair(cast.least_unexplained)}"
     if name == "reef":

@@ -37,6 +37,12 @@ def read_model(path: Path) -> pycolmap.Reconstruction:
         raise PipelineError(f"{model_dir}: COLMAP model cannot be read ({exc})") from None
 
 
+def registered_c2w(model: pycolmap.Reconstruction) -> dict[str, np.ndarray]:
+    """OpenCV camera-to-world (4, 4) of every registered image, by image name."""
+    return {model.image(i).name: c2w_from_cam_from_world(model.image(i).cam_from_world().matrix())
+            for i in model.reg_image_ids()}
+
+
 @dataclass
 class ModelImage:
     """One registered image of a COLMAP model, in source units."""

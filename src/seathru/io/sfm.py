@@ -24,13 +24,12 @@ import pycolmap
 
 from seathru.errors import PipelineError
 from seathru.geometry.intrinsics import FocalPrior, initial_camera_params
-from seathru.geometry.poses import c2w_from_cam_from_world
 from seathru.geometry.quality import (MAPPERS, MATCHERS, STILL_SHIFT, PairMotion, QualityGate,
                                       SfmAttempt,
                                       SfmRun, SfmSettings, confirmed_run, failure_message,
                                       plan_attempts, pose_agreement, reprojection_scale,
                                       unconfirmed_message, unconfirmed_run)
-from seathru.io.colmap import model_images
+from seathru.io.colmap import model_images, registered_c2w
 from seathru.io.dataset_readers import PosedDataset, PosedView
 from seathru.io.manifest import IngestFolder
 from seathru.io.pose_report import ColmapDetails
@@ -156,12 +155,6 @@ def registered_names(model: pycolmap.Reconstruction | None) -> set[str]:
     return {model.image(image_id).name for image_id in model.reg_image_ids()}
 
 
-def registered_c2w(model: pycolmap.Reconstruction) -> dict[str, np.ndarray]:
-    """OpenCV camera-to-world (4, 4) of every registered image, by image name."""
-    return {model.image(i).name: c2w_from_cam_from_world(model.image(i).cam_from_world().matrix())
-            for i in model.reg_image_ids()}
-
-
 def compare_models(model: pycolmap.Reconstruction | None,
                    other: pycolmap.Reconstruction | None) -> dict | None:
     """:func:`seathru.geometry.quality.pose_agreement` of two models' registered images."""
@@ -258,14 +251,14 @@ def reconstruct(image_dir: Path, names: list[str], work_dir: Path, settings: Sfm
     fail that way at times. Models built on the user's matcher are the candidates (for ordered
     dive sets the sequential matches hold fewer false pairs); the other matcher's models serve
     as witnesses, and become candidates when no model on the user's matcher is confirmed
-    (``seathru.geometry.quality.confirmed_run``); where the first attempt registers nothing and the matched features hardly move
-    between photographs (:func:`largest_pair_shift` below ``STILL_SHIFT``: taken from one
-    place), nothing else is tried. Among confirmed candidates the one tried first wins, unless
-    a gate-passing model that disagrees with it has a ``gate.rival_error_ratio`` times lower
-    mean reprojection error; when no candidate is confirmed, the one with the lowest mean
-    reprojection error is kept, marked unconfirmed. The result also holds each image's SIFT
-    feature count, its best pair's verified matches and the largest shift, for the failure
-    message.
+    (``seathru.geometry.quality.confirmed_run``); where the first attempt registers nothing
+    and the matched features hardly move between photographs (:func:`largest_pair_shift`
+    below ``STILL_SHIFT``: taken from one place), nothing else is tried. Among confirmed
+    candidates the one tried first wins, unless a gate-passing model that disagrees with it
+    has a ``gate.rival_error_ratio`` times lower mean reprojection error; when no candidate
+    is confirmed, the one with the lowest mean reprojection error is kept, marked
+    unconfirmed. The result also holds each image's SIFT feature count, its best pair's
+    verified matches and the largest shift, for the failure message.
     """
     work_dir.mkdir(parents=True, exist_ok=True)
     runner = _Runner(image_dir, names, work_dir, gate)

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from seathru.geometry.poses import c2w_from_cam_from_world, compare_trajectories
-from seathru.io.colmap import read_model
+from seathru.geometry.poses import compare_trajectories
+from seathru.io.colmap import read_model, registered_c2w
 from seathru.io.dataset_readers import PosedDataset
 from seathru.io.pose_report import SourceModelRecord
 
@@ -63,10 +63,8 @@ def align_to_poses(model: pycolmap.Reconstruction, dataset: PosedDataset, model_
     """
     points = int(model.num_points3D())
     poses = {view.name: view.c2w for view in dataset.views}
-    pairs = [(c2w_from_cam_from_world(image.cam_from_world().matrix()), poses[Path(image.name)
-                                                                              .stem])
-             for image_id in sorted(model.reg_image_ids())
-             for image in [model.image(image_id)] if Path(image.name).stem in poses]
+    pairs = [(c2w, poses[Path(name).stem]) for name, c2w in sorted(registered_c2w(model).items())
+             if Path(name).stem in poses]
     if len(pairs) < MIN_SHARED_IMAGES:
         return _record(model_dir, points, False,
                        f"{len(pairs)} of its images are named like a posed view (at least "

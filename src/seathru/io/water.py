@@ -63,8 +63,9 @@ MODES = ("off", "global", "view", "veiling")
 DIRECTIONAL = ("view", "veiling")   # water (or its veiling light) that depends on direction
 BELOW_HORIZON_NOTE = (
     "the photographs' open water looks below the horizon (seathru.geometry.upright; less than a "
-    "fifth of it above): it may be seabed beyond the surfaces the views show, whose colour still holds some of its own "
-    "light; the intervals allow for such a surface from least_surface_range on")
+    "fifth of it above): it may be seabed beyond the surfaces the views show, whose colour "
+    "still holds some of its own light; the intervals allow for such a surface from "
+    "least_surface_range on")
 UNCERTAINTY_METHOD = (
     "95% prediction intervals around the trained value: a water fit on the model's own "
     "surfaces (seathru.nerf.water_uncertainty.robust_halfwidths) gives a cluster-robust "
