@@ -164,3 +164,32 @@ def test_water_per_metre_where_the_camera_file_knows_the_scale(tmp_path):
     (tmp_path / "bad.json").write_text(json.dumps(data))
     with pytest.raises(PipelineError, match="metres_per_source_unit must be a positive"):
         read_water(tmp_path / "bad.json")
+
+
+def test_values_moved_by_what_the_images_cannot_tell_are_named_with_that_reason(tmp_path):
+    """An orbit: sigma_bs[G] and c_med are wider than 25%; sigma_attn[R] is within +-15% but
+    the veiling light beyond the surfaces moves it by 9% (``ambiguity95``)."""
+    half = {"sigma_attn": [0.12, 0.02, 0.02], "sigma_bs": [0.02, 0.2, 0.02],
+            "c_med": [0.03, 0.1, 0.1]}
+    ambiguity = {"sigma_attn": [0.072, 0.0, 0.0], "sigma_bs": [0.0, 0.15, 0.0],
+                 "c_med": [0.03, 0.1, 0.1]}
+    assessment = {"halfwidth95": half, "ambiguity95": ambiguity,
+                  "determined": {"sigma_attn": [False, True, True],
+                                 "sigma_bs": [True, False, True], "c_med": [False] * 3},
+                  "surface_fit": {k: list(GLOBAL_PARAMS[k]) for k in half},
+                  "pixels": 1000, "groups": 50}
+    report = WaterReport.from_parameters(GLOBAL_PARAMS, 0.5, assessment)
+    message = report.undetermined_message()
+    assert "sigma_bs[G], c_med[R], c_med[G], c_med[B] (95% interval wider than +-25%)" in message
+    assert "sigma_attn[R] (up to 9%), moved by what the images cannot tell: the veiling " \
+        "light beyond the farthest surfaces" in message
+    assert report.to_dict()["uncertainty"]["normalised"]["ambiguity95"] == ambiguity
+    write_water(tmp_path / "water.json", report)
+    assert read_water(tmp_path / "water.json") == report
+    # files written before session 47 have no ambiguity95: every flag reads as a wide interval
+    data = report.to_dict()
+    del data["uncertainty"]["normalised"]["ambiguity95"]
+    old = WaterReport.from_dict(data)
+    assert "ambiguity95" not in old.uncertainty
+    assert "sigma_attn[R], sigma_bs[G]" in old.undetermined_message()
+    assert "cannot tell" not in old.undetermined_message()

@@ -119,6 +119,13 @@ def test_training_learns_the_scene_and_the_water(default_scene, tmp_path):
     fitted_water = fitted["normalised"]
     assert np.argmin(fitted_water["c_med"]) == np.argmin(truth["c_med"]) == 0
     assert np.argmax(fitted_water["sigma_attn"]) == np.argmax(truth["sigma_attn"]) == 0
+    # what the images cannot tell apart is recorded, and a value it moves by more than 5% is
+    # not determined however narrow its interval
+    uncertainty = fitted["uncertainty"]
+    ambiguity = uncertainty["normalised"]["ambiguity95"]
+    for key, parts in ambiguity.items():
+        for part, value, ok in zip(parts, fitted_water[key], uncertainty["determined"][key]):
+            assert part >= 0.0 and (part <= 0.05 * abs(value) or not ok), (key, part, value)
     # The backscatter the model renders grows with the true range, as the water model says.
     frame = cameras.split("test")[0]
     rendered = render_frame(model, frame)

@@ -10,7 +10,9 @@ import torch
 
 from seathru.nerf.water_fit import (WaterFit, fit_water, projected_loss, water_start,
                                     water_vector)
-from seathru.nerf.water_uncertainty import (cluster_variances, far_surface_range, group_scores,
+from seathru.nerf.water_uncertainty import (AMBIGUOUS_SPLITS, WaterUncertainty,
+                                            ambiguity_halfwidths, cluster_variances,
+                                            far_surface_range, group_scores,
                                             interval_determined, laplace_halfwidths,
                                             robust_halfwidths, surface_behind_open_water,
                                             veiling_beyond_surfaces, veiling_slide)
@@ -211,6 +213,41 @@ def test_a_trained_value_far_from_the_surface_fit_is_not_determined():
     assert flags["c_med"] == [True, False, True]
 
 
+def test_what_the_images_cannot_tell_apart_leaves_a_value_undetermined_however_narrow():
+    """An orbit's red attenuation 9-12% off with an interval of +-18%: narrow enough to pass
+    the 25% width test, but the veiling light no open water shows moves it by more than 5%."""
+    fit = WaterFit([1.0, 1.0, 1.0], [0.5, 0.5, 0.5], [0.2, 0.2, 0.2], 0.0, 1000, 50)
+    half = {"sigma_attn": [0.18, 0.18, 0.18], "sigma_bs": [0.05, 0.05, 0.05],
+            "c_med": [0.01, 0.01, 0.01]}
+    ambiguity = {"sigma_attn": [0.09, 0.04, 0.0], "sigma_bs": [0.05, 0.0, 0.02],
+                 "c_med": [0.0, 0.011, 0.009]}
+    trained = {k: list(getattr(fit, k)) for k in KEYS}
+    width_alone = interval_determined(trained, fit, half)
+    assert all(all(flags) for flags in width_alone.values())
+    both = interval_determined(trained, fit, half, ambiguity=ambiguity)
+    # 0.09 > 5% of 1.0; 0.04 and 0 within it
+    assert both["sigma_attn"] == [False, True, True]
+    assert both["sigma_bs"] == [False, True, True]      # 0.05 > 0.025; 0.02 <= 0.025
+    assert both["c_med"] == [True, False, True]          # 0.011 > 0.01; 0.009 <= 0.01
+    assert interval_determined(trained, fit, half, ambiguity=ambiguity,
+                               max_ambiguity=1.0) == width_alone
+
+
+def test_ambiguity_is_the_largest_part_from_what_the_images_cannot_tell_apart():
+    splits = {"range": [0.5] * 9, "grouping": [0.4] * 9,
+              AMBIGUOUS_SPLITS[0]: [0.1 * i for i in range(9)]}
+    spread = WaterUncertainty({k: [1.0] * 3 for k in KEYS}, {k: [True] * 3 for k in KEYS}, 100,
+                              "robust", splits=splits)
+    assert ambiguity_halfwidths(spread) == {"sigma_attn": [0.0, 0.1, 0.2],
+                                            "sigma_bs": pytest.approx([0.3, 0.4, 0.5]),
+                                            "c_med": pytest.approx([0.6, 0.7, 0.8])}
+    spread.splits[AMBIGUOUS_SPLITS[1]] = [0.25] * 9
+    assert ambiguity_halfwidths(spread)["sigma_attn"] == [0.25, 0.25, 0.25]
+    # data-split disagreement alone is not ambiguity: better geometry would narrow it
+    spread.splits = {"range": [0.5] * 9}
+    assert ambiguity_halfwidths(spread) == {k: [0.0] * 3 for k in KEYS}
+
+
 def test_interval_floor_widens_only_the_narrowest_half_widths():
     ranges, observed, ids, groups = _small(5, noise=0.001)
     fit = fit_water(ranges, observed, ids, groups, START)
@@ -377,6 +414,13 @@ def test_without_open_water_the_unseen_veiling_light_widens_the_water_intervals(
     assert misses(plain, "sigma_bs") + misses(plain, "c_med") >= 4
     assert misses(allowed, "sigma_bs") + misses(allowed, "c_med") == 0
     assert not any(allowed.determined["sigma_bs"])
+    # what the unseen veiling light moves is ambiguity; the data splits alone are not
+    assert ambiguity_halfwidths(allowed)["sigma_bs"] == \
+        allowed.splits["veiling_beyond_surfaces"][3:6]
+    assert ambiguity_halfwidths(plain) == {k: [0.0] * 3 for k in KEYS}
+    flagged = interval_determined({k: getattr(fit, k) for k in KEYS}, fit, allowed.halfwidth,
+                                  ambiguity=ambiguity_halfwidths(allowed))
+    assert not any(flagged["sigma_bs"]) and not any(flagged["c_med"])
     # the attenuation slides too: green and blue held only with the refits at the ends
     held = [abs(v - t) <= h for v, h, t in zip(fit.sigma_attn, allowed.halfwidth["sigma_attn"],
                                                 TRUE["sigma_attn"])]

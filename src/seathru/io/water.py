@@ -21,9 +21,12 @@ read too)::
 With a global medium, ``uncertainty`` says how well the views determine each number::
 
      "uncertainty": {"method": "...", "interval95": {"sigma_attn": [[lo, hi] x 3], ...},
-                     "determined": {"sigma_attn": [bool x 3], ...},   # half-width <= 25%
+                     "determined": {"sigma_attn": [bool x 3], ...},   # half-width <= 25%,
+                         # and its part from what the images cannot tell apart <= 5%
                      "surface_fit": {...},       # the water fit on the model's own surfaces
-                     "normalised": {"halfwidth95": {...}, "surface_fit": {...}},
+                     "normalised": {"halfwidth95": {...}, "surface_fit": {...},
+                                    "ambiguity95": {...}},   # that part (files since session
+                                                             # 47; absent: not judged on it)
                      "pixels": int, "groups": int,
                      "not_assessed": "...",      # only where there were no surfaces to fit
                                                  # on: every interval open, nothing determined
@@ -50,7 +53,7 @@ from typing import Any, Mapping
 from seathru.errors import PipelineError
 from seathru.io.atomic import write_json
 from seathru.io.jsonfile import read_json
-from seathru.nerf.water_interval import interval_halfwidth
+from seathru.nerf.water_interval import DETERMINED_MAX_RELATIVE, interval_halfwidth
 
 WATER_FORMAT = "seathru-water/1"
 WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
@@ -75,7 +78,10 @@ UNCERTAINTY_METHOD = (
     "water's colour, or, with no open water in view, how much of the veiling light lies beyond "
     "the farthest surfaces; the interval is widened by the trained value's distance to that "
     "fit. A parameter whose interval reaches more than 25% of its value either side is not "
-    "determined by the views")
+    "determined by the views, nor one whose interval the alternatives the images cannot tell "
+    "apart (the veiling light beyond the farthest surfaces, open water that may be far "
+    "seabed) widen by more than medium.determined_ambiguity (5%) of its value: "
+    "normalised.ambiguity95")
 
 
 @dataclass(frozen=True)
@@ -170,6 +176,9 @@ class WaterReport:
                                            for k in WATER_KEYS},
                            "pixels": int(assessment["pixels"]),
                            "groups": int(assessment["groups"])}
+            if assessment.get("ambiguity95") is not None:
+                uncertainty["ambiguity95"] = {k: [float(v) for v in assessment["ambiguity95"][k]]
+                                              for k in WATER_KEYS}
             if assessment.get("open_water_beyond") is not None:
                 uncertainty["open_water_beyond"] = float(assessment["open_water_beyond"])
         return cls(mode=str(params["mode"]), scale=float(scale),
@@ -230,7 +239,9 @@ class WaterReport:
                 "normalised": {"halfwidth95": {k: [v if math.isfinite(v) else None
                                                    for v in u["halfwidth95"][k]]
                                                for k in WATER_KEYS},
-                               "surface_fit": u["surface_fit"]},
+                               "surface_fit": u["surface_fit"],
+                               **({"ambiguity95": u["ambiguity95"]}
+                                  if u.get("ambiguity95") else {})},
                 "pixels": u["pixels"], "groups": u["groups"],
                 **({"not_assessed": u["not_assessed"]} if u.get("not_assessed") else {}),
                 **({"open_water_below_horizon": {
@@ -246,11 +257,41 @@ class WaterReport:
             return (f"the water could not be checked on the model's own surfaces "
                     f"({not_assessed}): none of its values is known to be determined by the "
                     "views, and the restored images rest on them")
+        u = self.uncertainty or {}
         below = " (the photographs' open water looks below the horizon: it may be far " \
-            "seabed, not the veiling light)" if (self.uncertainty or {}).get(
-                "open_water_beyond") else ""
-        return (f"the views do not determine {', '.join(self.undetermined)} of the water (95% "
-                f"interval wider than +-25%){below}: the restored images rest on them")
+            "seabed, not the veiling light)" if u.get("open_water_beyond") else ""
+        wide, ambiguous = self._undetermined_by_reason()
+        parts = [f"{', '.join(wide)} (95% interval wider than "
+                 f"+-{DETERMINED_MAX_RELATIVE:.0%})"] if wide else []
+        if ambiguous:
+            alternative = "whether the open water is far seabed" if u.get("open_water_beyond") \
+                else "the veiling light beyond the farthest surfaces, which no open water in " \
+                "view shows"
+            parts.append(", ".join(f"{name} (up to {share:.0%})" for name, share in ambiguous)
+                         + f", moved by what the images cannot tell: {alternative}")
+        return (f"the views do not determine the water's {'; '.join(parts)}{below}: the "
+                "restored images rest on them")
+
+    def _undetermined_by_reason(self) -> tuple[list[str], list[tuple[str, float]]]:
+        """The undetermined values whose interval is wider than ``DETERMINED_MAX_RELATIVE`` of
+        them, and the others with the share of their value that what the images cannot tell
+        apart moves them."""
+        u, centre = self.uncertainty or {}, self.normalised.as_dict()
+        wide, ambiguous = [], []
+        for key in WATER_KEYS:
+            for i, ok in enumerate(u.get("determined", {}).get(key, [])):
+                if ok:
+                    continue
+                name, value = f"{key}[{'RGB'[i]}]", abs(centre[key][i])
+                width = interval_halfwidth(centre[key][i], u["surface_fit"][key][i],
+                                           u["halfwidth95"][key][i])
+                share = u.get("ambiguity95", {}).get(key, [0.0] * 3)[i] / value \
+                    if value > 0 else math.inf
+                if math.isfinite(width) and width <= DETERMINED_MAX_RELATIVE * value and share > 0:
+                    ambiguous.append((name, share))
+                else:
+                    wide.append(name)
+        return wide, ambiguous
 
     @property
     def undetermined(self) -> list[str]:
@@ -288,6 +329,10 @@ class WaterReport:
                     "surface_fit": {k: [float(v) for v in u["normalised"]["surface_fit"][k]]
                                     for k in WATER_KEYS},
                     "pixels": int(u["pixels"]), "groups": int(u["groups"])}
+                if isinstance(u["normalised"].get("ambiguity95"), Mapping):
+                    uncertainty["ambiguity95"] = {
+                        k: [float(v) for v in u["normalised"]["ambiguity95"][k]]
+                        for k in WATER_KEYS}
                 if u.get("not_assessed"):
                     uncertainty["not_assessed"] = str(u["not_assessed"])
                 below = u.get("open_water_below_horizon")

@@ -161,6 +161,13 @@ class MediumConfig:
                    "veiling light beyond the farthest surfaces, which only the curvature of "
                    "their backscatter with range shows, and for the attenuation's move with "
                    "it (transects, orbits; docs/water.md)")
+    determined_ambiguity: float = setting(
+        0.05, help="water.json flags a value as not determined by the views when the part of "
+                   "its 95% interval that comes from what the images cannot tell apart (the "
+                   "veiling light beyond the farthest surfaces with no open water in view; "
+                   "open water that may be far seabed) exceeds this share of it, however "
+                   "narrow the interval (the water benchmark's 5% goal); 1 = judged on the "
+                   "interval's width alone (25%)")
     interval_floor: float = setting(
         0.01, help="least 95% half-width of each water value in water.json, as a share of it: "
                    "what the image values themselves are known to (black level, "

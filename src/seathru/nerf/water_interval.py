@@ -7,6 +7,9 @@ Plain floats, no PyTorch: the report and evaluate steps read ``water.json`` with
 
 from __future__ import annotations
 
+# a value whose interval reaches further than this share of it either side is not determined
+DETERMINED_MAX_RELATIVE = 0.25
+
 
 def interval_halfwidth(trained: float, surface_fit: float, halfwidth: float) -> float:
     """Half-width of the interval around ``trained``: the surface fit's 95% ``halfwidth``

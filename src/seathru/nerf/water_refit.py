@@ -23,7 +23,8 @@ import torch
 
 from seathru.nerf.water_fit import WaterFit, fit_surfaces
 from seathru.nerf.water_surfaces import SurfaceData, correspondence_rays, surface_data
-from seathru.nerf.water_uncertainty import (far_surface_range, interval_determined,
+from seathru.nerf.water_uncertainty import (WaterUncertainty, ambiguity_halfwidths,
+                                            far_surface_range, interval_determined,
                                             laplace_halfwidths, robust_halfwidths)
 
 WATER_KEYS = ("sigma_attn", "sigma_bs", "c_med")
@@ -178,10 +179,12 @@ class WaterRefitting:
     @torch.no_grad()
     def assess_water(self, trained: dict | None = None) -> dict | None:
         """How well the images determine the trained water: a fit on the final geometry's
-        surfaces and its robust 95% half-widths (``water_uncertainty.robust_halfwidths``: statistical and
-        systematic parts), normalised units; ``determined`` judges the interval around the
-        ``trained`` values (``water_uncertainty.interval_determined``; default: the model's water),
-        ``fit_determined`` the surface fit's own half-widths. None when the medium is neither
+        surfaces and its robust 95% half-widths (``water_uncertainty.robust_halfwidths``:
+        statistical and systematic parts), normalised units; ``determined`` judges the
+        interval around the ``trained`` values (``water_uncertainty.interval_determined``;
+        default: the model's water) and its part from what the images cannot tell apart
+        (``ambiguity95``, against ``medium.determined_ambiguity``), ``fit_determined`` the
+        surface fit's own half-widths. None when the medium is neither
         global nor veiling (whose c_med is the mean over directions) or there are too few
         surface pixels."""
         model = self.model
@@ -194,24 +197,37 @@ class WaterRefitting:
             return {"skipped": data}
         offered = len(data.ranges)
         fit, data = self._fit_surfaces(data, model.water_parameters())
-        beyond = far_surface_range(data.ranges) if data.open_water_below_horizon else None
-        spread = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,
-                                   colour_max=model.medium.colour_max,
-                                   open_water_beyond=beyond,
-                                   unseen_veiling=medium.interval_unseen_veiling,
-                                   dark=data.dark if medium.dark_pixel_bound else None,
-                                   range_error=medium.interval_range_error,
-                                   min_relative=medium.interval_floor,
-                                   regrouped=[(d.ranges, d.observed, d.ids, d.groups)
-                                              for d in regrouped if not isinstance(d, str)])
+        spread, beyond = assessment_spread(fit, data, regrouped, medium,
+                                           model.medium.colour_max)
+        ambiguity = ambiguity_halfwidths(spread)
         return {"surface_fit": {k: getattr(fit, k) for k in WATER_KEYS},
                 "halfwidth95": spread.halfwidth, "fit_determined": spread.determined,
-                "determined": interval_determined(trained or model.water_parameters(), fit,
-                                                  spread.halfwidth),
+                "determined": interval_determined(
+                    trained or model.water_parameters(), fit, spread.halfwidth,
+                    ambiguity=ambiguity, max_ambiguity=medium.determined_ambiguity),
+                "ambiguity95": ambiguity,
                 "pixels": fit.pixels, "left_out": offered - len(data.ranges),
                 "groups": fit.groups,
                 "effective_samples": spread.effective_samples,
                 **({"open_water_beyond": beyond} if beyond is not None else {})}
+
+
+def assessment_spread(fit: WaterFit, data: SurfaceData, regrouped: Sequence[SurfaceData | str],
+                      medium, colour_max: float) -> tuple[WaterUncertainty, float | None]:
+    """The final assessment's robust 95% half-widths of ``fit`` on ``data`` (the pixels it
+    used) with the ``medium`` config's interval settings, the same pixels ``regrouped`` at
+    other voxel sizes (reasons, str, are left out); and the least range of seabed the open
+    water may be, where it looks below the horizon (else None)."""
+    beyond = far_surface_range(data.ranges) if data.open_water_below_horizon else None
+    spread = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,
+                               colour_max=colour_max, open_water_beyond=beyond,
+                               unseen_veiling=medium.interval_unseen_veiling,
+                               dark=data.dark if medium.dark_pixel_bound else None,
+                               range_error=medium.interval_range_error,
+                               min_relative=medium.interval_floor,
+                               regrouped=[(d.ranges, d.observed, d.ids, d.groups)
+                                          for d in regrouped if not isinstance(d, str)])
+    return spread, beyond
 
 
 def below_horizon(directions: torch.Tensor, up, margin_deg: float) -> torch.Tensor | None:

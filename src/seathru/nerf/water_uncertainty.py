@@ -3,7 +3,8 @@
 :func:`laplace_halfwidths` takes the curvature of the profile loss (pixel noise only);
 :func:`robust_halfwidths` is cluster-robust over surface groups and adds how much parts of the
 data disagree, which holds most of a NeRF geometry's error. :func:`interval_determined` flags
-the parameters a trained water's interval leaves undetermined.
+the parameters a trained water's interval leaves undetermined, or that alternatives the images
+cannot tell apart (:data:`AMBIGUOUS_SPLITS`) move beyond the goal's tolerance.
 """
 
 from __future__ import annotations
@@ -18,8 +19,14 @@ from torch import Tensor
 from seathru.nerf.water_fit import (NAMES, WaterFit, fit_water, incidental_gradient,
                                     projected_loss, projected_residuals, water_start,
                                     water_vector)
-from seathru.nerf.water_interval import interval_halfwidth
+from seathru.nerf.water_interval import DETERMINED_MAX_RELATIVE, interval_halfwidth
 from seathru.nerf.water_surfaces import renumbered_groups
+
+
+# comparisons of robust_halfwidths that no amount of data of the same kind narrows: the veiling
+# light beyond the farthest surfaces where no open water is in view, and open water that may be
+# far seabed; the others measure how well the data pin the water, these what they cannot say
+AMBIGUOUS_SPLITS = ("veiling_beyond_surfaces", "open_water_surface")
 
 
 @dataclass
@@ -34,7 +41,8 @@ class WaterUncertainty:
 
 
 def laplace_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tensor,
-                       groups: int, max_relative: float = 0.25) -> WaterUncertainty:
+                       groups: int, max_relative: float = DETERMINED_MAX_RELATIVE
+                       ) -> WaterUncertainty:
     """95% intervals of the fitted water from the curvature of the profile loss (Laplace).
 
     The loss of :func:`projected_loss` is already minimised over every clean colour, so its
@@ -65,7 +73,8 @@ def laplace_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Ten
 
 
 def robust_halfwidths(fit: WaterFit, ranges: Tensor, observed: Tensor, ids: Tensor,
-                      groups: int, max_relative: float = 0.25, colour_max: float = 1.5,
+                      groups: int, max_relative: float = DETERMINED_MAX_RELATIVE,
+                      colour_max: float = 1.5,
                       dark: tuple[Tensor, Tensor] | None = None, steps: int = 100,
                       min_groups: int = 20, range_error: float = 0.0,
                       min_relative: float = 0.0,
@@ -356,29 +365,62 @@ def surface_behind_open_water(theta: Tensor, ranges: Tensor, observed: Tensor, b
 
 
 def interval_determined(trained: dict, surface_fit: WaterFit, halfwidth: dict[str, list[float]],
-                        max_relative: float = 0.25) -> dict[str, list[bool]]:
+                        max_relative: float = DETERMINED_MAX_RELATIVE,
+                        ambiguity: dict[str, list[float]] | None = None,
+                        max_ambiguity: float = 0.05) -> dict[str, list[bool]]:
     """Whether the views determine each trained water value, judged on the interval around it
     (``water_interval.interval_halfwidth``): determined where that half-width is finite and at most
     ``max_relative`` of the value (judged on the fit's half-width alone, values up to 81% off
-    the truth on the water benchmark were flagged as determined).
+    the truth on the water benchmark were flagged as determined), and where the part of it that
+    comes from alternatives the images cannot tell apart (``ambiguity``,
+    :func:`ambiguity_halfwidths`) is at most ``max_ambiguity`` of the value. The second test
+    is what the width cannot be: a 20% interval that holds the truth is honest, but where it
+    is 20% because no open water shows the veiling light, no better geometry would narrow it,
+    and the value is not known to the 5% the water benchmark asks of a determined one
+    (orbits' red attenuation, 8-12% off with 16-22% intervals: ``determined.md``).
 
     Args:
         trained: ``{"sigma_attn": [3], "sigma_bs": [3], "c_med": [3]}`` trained values.
         surface_fit: the fit on the model's surfaces the half-widths belong to.
         halfwidth: 95% half-widths per name (``WaterUncertainty.halfwidth``).
         max_relative: largest widened half-width, as a share of the value, still determined.
+        ambiguity: per name, the half-widths' part from what the images cannot tell apart;
+            None judges on the half-width alone.
+        max_ambiguity: largest such part, as a share of the value, still determined.
 
     Returns:
         per name, per channel, True where determined.
 
     Example::
 
-        flags = interval_determined(model.water_parameters(), fit, spread.halfwidth)
+        flags = interval_determined(model.water_parameters(), fit, spread.halfwidth,
+                                    ambiguity=ambiguity_halfwidths(spread))
     """
-    return {name: [bool(math.isfinite(h) and interval_halfwidth(float(c), g, h)
-                        <= max_relative * abs(float(c)))
-                   for c, g, h in zip(trained[name], getattr(surface_fit, name), halfwidth[name])]
-            for name in NAMES}
+    flags = {}
+    for name in NAMES:
+        unsure = ambiguity[name] if ambiguity is not None else [0.0] * 3
+        flags[name] = [bool(math.isfinite(h) and interval_halfwidth(float(c), g, h)
+                            <= max_relative * abs(float(c))
+                            and a <= max_ambiguity * abs(float(c)))
+                       for c, g, h, a in zip(trained[name], getattr(surface_fit, name),
+                                             halfwidth[name], unsure)]
+    return flags
+
+
+def ambiguity_halfwidths(spread: WaterUncertainty) -> dict[str, list[float]]:
+    """The part of each robust 95% half-width that comes from the comparisons in
+    :data:`AMBIGUOUS_SPLITS` (the largest of those present; 0 where none is), per name and
+    channel, in the units of the half-widths.
+
+    Example::
+
+        spread = robust_halfwidths(fit, z, rgb, ids, groups, unseen_veiling=True)
+        ambiguity_halfwidths(spread)["sigma_attn"]    # [r, g, b]
+    """
+    parts = [spread.splits[name] for name in AMBIGUOUS_SPLITS
+             if spread.splits and name in spread.splits]
+    largest = [max((part[i] for part in parts), default=0.0) for i in range(3 * len(NAMES))]
+    return _by_name(largest)
 
 
 def data_splits(ranges: Tensor, ids: Tensor, groups: int) -> dict[str, tuple[Tensor, ...]]:
