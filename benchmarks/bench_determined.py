@@ -23,6 +23,7 @@ import argparse
 import json
 import sys
 import time
+from functools import partial
 from multiprocessing import Pool
 from pathlib import Path
 
@@ -43,7 +44,7 @@ RULES = [("width <= 25% (before)", 0.25, None), ("width <= 25%, ambiguity <= 5% 
          ("width <= 15%", 0.15, None)]
 
 
-def assess(model_dir: str) -> dict:
+def assess(model_dir: str, stored_up: bool = False) -> dict:
     """One trained model's final assessment redone: per value the truth, trained value,
     surface fit, widened 95% half-width, ambiguity part and every split (normalised units)."""
     import torch
@@ -58,8 +59,10 @@ def assess(model_dir: str) -> dict:
     train = Path(model_dir)
     sim = train.parent
     path, water = sim.name.split("_", 1)
-    record = {"model": f"{sim.name}/{train.name}", "path": path, "water": water}
-    data, model, truth, trained, _, regrouped = model_surfaces(sim, train, regroup=True)
+    record = {"model": f"{sim.name}/{train.name}", "path": path, "water": water,
+              "up": "stored" if stored_up else "this code's"}
+    data, model, truth, trained, _, regrouped = model_surfaces(sim, train, regroup=True,
+                                                               up_now=not stored_up)
     if isinstance(data, str):
         return {**record, "skipped": data}
     medium = model.config.medium
@@ -79,7 +82,7 @@ def assess(model_dir: str) -> dict:
                 "ambiguity": ambiguity[key][c],
                 "splits": {name: part[3 * i + c] for name, part in spread.splits.items()}})
     return {**record, "open_water": bool((~torch.isfinite(data.ranges)).any()),
-            "params": params}
+            "open_water_below_horizon": bool(data.open_water_below_horizon), "params": params}
 
 
 def determined(value: dict, width: float, ambiguity: float | None) -> bool:
@@ -117,8 +120,13 @@ def summarise(rows: list[dict], sources: list[str], machine: str, out: Path) -> 
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     held = sum(abs(v["trained"] - v["truth"]) <= v["halfwidth"] for r in done
                for v in r["params"])
+    ups = sorted({r.get("up", "stored") for r in done})
+    below = {p: f"{sum(r.get('open_water_below_horizon', False) for r in done if r['path'] == p)}"
+                f" of {sum(r['path'] == p for r in done)}" for p in PATHS}
     lines += ["", f"Intervals (the same under every rule) hold the truth in {held} of "
-              f"{9 * len(done)} values ({len(done)} models).", "",
+              f"{9 * len(done)} values ({len(done)} models). Open water that all looks below "
+              f"the horizon (the vertical: {', '.join(ups)}), whose intervals allow for seabed "
+              "behind it: " + ", ".join(f"{p} {n}" for p, n in below.items()) + ".", "",
               "Values more than 5% off that the default rule leaves determined:", ""]
     missed = [(r, v) for r in done for v in r["params"]
               if relative_error(v) > OFF and determined(v, *RULES[1][1:])]
@@ -157,6 +165,9 @@ def main() -> None:
     parser.add_argument("--variant", default="cues", help="which trainings (train_VARIANT)")
     parser.add_argument("--jobs", type=int, default=1, help="models assessed at a time")
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--stored-up", action="store_true",
+                        help="tell open water below the horizon by the vertical each model was "
+                             "saved with (default: estimated from its cameras by this code)")
     parser.add_argument("--summarise-only", action="store_true",
                         help="rewrite the table from the saved .json")
     args = parser.parse_args()
@@ -174,7 +185,7 @@ def main() -> None:
         parser.error("no trained models with a truth water under --work")
     with Pool(args.jobs) as pool:
         rows = []
-        for row in pool.imap(assess, models):
+        for row in pool.imap(partial(assess, stored_up=args.stored_up), models):
             rows.append(row)
             print(row["model"], row.get("skipped", "assessed"), flush=True)
     summarise(rows, [str(w) for w in args.work], footer(load, started), args.out)

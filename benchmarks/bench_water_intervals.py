@@ -144,13 +144,15 @@ def trained_dive(sim: Path, train: Path):
     return model, cameras, frames, images, masks, water_masks, in_view
 
 
-def model_surfaces(sim: Path, train: Path, regroup: bool = False):
+def model_surfaces(sim: Path, train: Path, regroup: bool = False, up_now: bool = False):
     """The surface data of a trained model as its final water assessment builds it (all
     training rays, not less the medium-selection hold-out; open water from the photographs
     where in view, and whether it looks below the horizon), its model and the truth (in
     normalised units). Returns (data or reason, model, truth, trained water, scale, with
     ``regroup`` the same pixels grouped at each of the model's
-    ``medium.interval_voxel_factors`` times the refit voxel, else [])."""
+    ``medium.interval_voxel_factors`` times the refit voxel, else []). ``up_now``: the
+    vertical estimated from the training cameras by this code (``geometry.upright``), as a
+    model trained now would hold it, instead of the one the model was saved with."""
     from seathru.io.water import read_truth_water, read_water
     from seathru.nerf.rays import RayDataset
     from seathru.nerf.water_refit import below_horizon, refit_open_water_opacity
@@ -168,7 +170,13 @@ def model_surfaces(sim: Path, train: Path, regroup: bool = False):
             depth.append(render.depth_median)
             opacity.append(render.opacity)
     diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
-    below = below_horizon(rays.directions, model.scene.get("up"), config.medium.horizon_margin)
+    up = model.scene.get("up")
+    if up_now:
+        from seathru.geometry.upright import estimate_up
+
+        estimate = estimate_up(np.stack([f.c2w_array for f in frames]))
+        up = None if estimate is None else list(estimate.vector)
+    below = below_horizon(rays.directions, up, config.medium.horizon_margin)
     data, *regrouped = [
         surface_data(rays.origins, rays.directions, rays.rgb, torch.cat(depth),
                      torch.cat(opacity), factor * config.medium.refit_voxel * diagonal,

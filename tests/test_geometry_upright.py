@@ -53,6 +53,47 @@ def test_cameras_facing_one_way_fall_back_to_their_mean_up_axis():
     assert _angle(up.vector, [0.0, 0.0, 1.0]) == pytest.approx(45.0, abs=0.5)
 
 
+def _posed(rotation: np.ndarray, centre) -> np.ndarray:
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = rotation, centre
+    return pose
+
+
+@pytest.mark.parametrize("slope_deg", [0.0, 10.0])
+def test_a_transect_swum_at_one_depth_gives_the_vertical_of_its_path(slope_deg):
+    """Cameras pitched 45 degrees down, all facing the way the diver swims: the path is a
+    second horizontal direction, and the vertical comes within the path's slope of the truth
+    where the mean up axis is off by the pitch."""
+    rng = np.random.default_rng(0)
+    world = Rotation.random(random_state=2).as_matrix()
+    slope = math.radians(slope_deg)
+    poses = np.stack([_posed(world @ _camera(rng.normal(0, 0.02), math.radians(-45),
+                                             rng.normal(0, math.radians(1))),
+                             world @ np.array([0.5 * i * math.cos(slope), 0.02 * rng.normal(),
+                                               -0.5 * i * math.sin(slope)]))
+                      for i in range(16)])
+    up = estimate_up(poses)
+    truth = world @ np.array([0.0, 0.0, 1.0])
+    assert up.method == "level path"
+    assert _angle(up.vector, truth) < slope_deg + 2.0
+    assert _angle(-poses[:, :3, 1].mean(0), truth) > 40.0
+
+
+def test_a_path_along_the_image_right_or_up_axis_is_not_taken_as_level():
+    """Moving sideways leaves no second horizontal direction; sinking down a wall moves along
+    the cameras' up axis: both keep the cameras' mean up axis."""
+    sideways = np.stack([_posed(_camera(0.0, math.radians(-10)), [0.0, -0.4 * i, 0.0])
+                         for i in range(10)])
+    assert estimate_up(sideways).method == "mean camera up"
+    sinking = np.stack([_posed(_camera(0.0, 0.0), [0.0, 0.0, -0.4 * i]) for i in range(10)])
+    up = estimate_up(sinking)
+    assert up.method == "mean camera up" and _angle(up.vector, [0.0, 0.0, 1.0]) < 1.0
+    # a camera held in one place: no path at all
+    still = np.stack([_posed(_camera(0.01 * i, math.radians(-45)), [0.0, 0.0, 0.0])
+                      for i in range(10)])
+    assert estimate_up(still).method == "mean camera up"
+
+
 def test_no_cameras_is_an_error():
     with pytest.raises(ValueError, match="at least one camera"):
         estimate_up(np.zeros((0, 4, 4)))

@@ -181,7 +181,7 @@ def test_values_moved_by_what_the_images_cannot_tell_are_named_with_that_reason(
     report = WaterReport.from_parameters(GLOBAL_PARAMS, 0.5, assessment)
     message = report.undetermined_message()
     assert "sigma_bs[G], c_med[R], c_med[G], c_med[B] (95% interval wider than +-25%)" in message
-    assert "sigma_attn[R] (up to 9%), moved by what the images cannot tell: the veiling " \
+    assert "sigma_attn[R] (up to 9%), moved by what the images cannot tell (the veiling " \
         "light beyond the farthest surfaces" in message
     assert report.to_dict()["uncertainty"]["normalised"]["ambiguity95"] == ambiguity
     write_water(tmp_path / "water.json", report)

@@ -3,8 +3,12 @@
 SfM leaves the world frame's orientation arbitrary. A diver keeps the camera nearly level (small
 roll), so each camera's x axis (image right) is nearly horizontal; the vertical is the direction
 all of them are perpendicular to. When the diver looked in one direction only (a transect), the
-x axes are all alike and leave the vertical free to turn about them; then the cameras' mean up
-axis is taken, which is off by the dive's mean pitch.
+x axes are all alike and leave the vertical free to turn about them. A diver also holds a depth
+while swimming a transect, so where the cameras moved along a line across their x axes, that
+line is a second horizontal direction ("level path"; off by the path's slope, where the
+cameras' mean up axis is off by their pitch: 45 degrees on the simulator's transects, whose
+open water then looked above the horizon though it is seabed). Otherwise the cameras' mean up
+axis is taken.
 """
 
 from __future__ import annotations
@@ -21,8 +25,8 @@ class UpEstimate:
     method: str                          # "level cameras" or "mean camera up"
 
 
-def estimate_up(c2w: np.ndarray, min_spread: float = 0.05, max_tilt_deg: float = 20.0
-                ) -> UpEstimate | None:
+def estimate_up(c2w: np.ndarray, min_spread: float = 0.05, max_tilt_deg: float = 20.0,
+                max_pitch_deg: float = 60.0) -> UpEstimate | None:
     """The vertical of the world frame, from camera-to-world poses with OpenCV axes.
 
     Args:
@@ -36,10 +40,14 @@ def estimate_up(c2w: np.ndarray, min_spread: float = 0.05, max_tilt_deg: float =
             (mean camera up) the up axes' RMS angle to their mean, at most this. Frames shot
             in portrait and landscape mixed, or a camera turned about freely, have no common
             vertical.
+        max_pitch_deg: a level path's vertical is taken only within this angle of the
+            cameras' mean up axis (a diver sinking down a wall moves along the cameras' up
+            axis: the path is then not level, and its vertical would lie in the horizon).
 
     Returns:
         the unit up vector (pointing to the side the cameras' up axes point to on average) and
-        the method used; None where the cameras do not agree on one.
+        the method used ("level cameras", "level path" or "mean camera up"); None where the
+        cameras do not agree on one.
 
     Example::
 
@@ -66,8 +74,38 @@ def estimate_up(c2w: np.ndarray, min_spread: float = 0.05, max_tilt_deg: float =
         up, method = mean_up, "mean camera up"
         unit = up / np.linalg.norm(up)
         tilt = float(np.mean(1.0 - np.clip(ups @ unit, -1.0, 1.0) ** 2))
+        level = _level_path_up(np.asarray(c2w, dtype=np.float64), rights.mean(0), unit,
+                               max_pitch_deg)
+        if level is not None:
+            up, method = level, "level path"
     if tilt > largest_tilt:
         return None
     up = up / np.linalg.norm(up)
     return UpEstimate(tuple(float(v) for v in up), method)
+
+
+def _level_path_up(c2w: np.ndarray, right: np.ndarray, mean_up: np.ndarray,
+                   max_pitch_deg: float, max_width: float = 0.25,
+                   max_along_right_deg: float = 45.0) -> np.ndarray | None:
+    """The normal of the cameras' mean x axis and the line their centres lie along, or None:
+    no centres (rotations only), fewer than three, a path not a line (its second spread over
+    the first above ``max_width``), one running within ``max_along_right_deg`` of the x axis
+    (a diver moving sideways: no second direction), or a normal further than
+    ``max_pitch_deg`` from the cameras' mean up axis."""
+    if c2w.shape[-1] < 4 or len(c2w) < 3:
+        return None
+    centres = c2w[:, :3, 3]
+    values, vectors = np.linalg.eigh(np.cov(centres.T))    # ascending
+    if values[2] <= 1e-12 or values[1] > max_width * values[2]:
+        return None
+    along, right = vectors[:, 2], right / max(np.linalg.norm(right), 1e-12)
+    if abs(float(along @ right)) > math.cos(math.radians(max_along_right_deg)):
+        return None
+    up = np.cross(along, right)
+    up /= np.linalg.norm(up)
+    if up @ mean_up < 0:
+        up = -up
+    if float(up @ mean_up) < math.cos(math.radians(max_pitch_deg)):
+        return None
+    return up
 

@@ -268,7 +268,7 @@ class WaterReport:
                 else "the veiling light beyond the farthest surfaces, which no open water in " \
                 "view shows"
             parts.append(", ".join(f"{name} (up to {share:.0%})" for name, share in ambiguous)
-                         + f", moved by what the images cannot tell: {alternative}")
+                         + f", moved by what the images cannot tell ({alternative})")
         return (f"the views do not determine the water's {'; '.join(parts)}{below}: the "
                 "restored images rest on them")
 
