@@ -193,3 +193,17 @@ def test_values_moved_by_what_the_images_cannot_tell_are_named_with_that_reason(
     assert "ambiguity95" not in old.uncertainty
     assert "sigma_attn[R], sigma_bs[G]" in old.undetermined_message()
     assert "cannot tell" not in old.undetermined_message()
+
+
+def test_seabed_that_may_lie_behind_the_open_water_is_named_once():
+    half = {k: [0.01, 0.5, 0.01] for k in ("sigma_attn", "sigma_bs", "c_med")}
+    ambiguity = {k: [0.0, 0.3, 0.005] for k in half}
+    ambiguity["sigma_attn"] = [0.1, 0.3, 0.0]       # 12.5% of 0.8
+    assessment = {"halfwidth95": half, "ambiguity95": ambiguity,
+                  "determined": {k: [k != "sigma_attn", False, True] for k in half},
+                  "surface_fit": {k: list(GLOBAL_PARAMS[k]) for k in half},
+                  "pixels": 1000, "groups": 50, "open_water_beyond": 2.0}
+    message = WaterReport.from_parameters(GLOBAL_PARAMS, 0.5, assessment).undetermined_message()
+    assert "sigma_attn[R] (up to 12%), moved by what the images cannot tell (the " \
+        "photographs' open water looks below the horizon: it may be far seabed" in message
+    assert message.count("below the horizon") == 1

@@ -258,18 +258,18 @@ class WaterReport:
                     f"({not_assessed}): none of its values is known to be determined by the "
                     "views, and the restored images rest on them")
         u = self.uncertainty or {}
-        below = " (the photographs' open water looks below the horizon: it may be far " \
-            "seabed, not the veiling light)" if u.get("open_water_beyond") else ""
+        below = "the photographs' open water looks below the horizon: it may be far seabed, " \
+            "not the veiling light" if u.get("open_water_beyond") else ""
         wide, ambiguous = self._undetermined_by_reason()
         parts = [f"{', '.join(wide)} (95% interval wider than "
                  f"+-{DETERMINED_MAX_RELATIVE:.0%})"] if wide else []
         if ambiguous:
-            alternative = "whether the open water is far seabed" if u.get("open_water_beyond") \
-                else "the veiling light beyond the farthest surfaces, which no open water in " \
-                "view shows"
+            alternative = below or "the veiling light beyond the farthest surfaces, which no " \
+                "open water in view shows"
             parts.append(", ".join(f"{name} (up to {share:.0%})" for name, share in ambiguous)
                          + f", moved by what the images cannot tell ({alternative})")
-        return (f"the views do not determine the water's {'; '.join(parts)}{below}: the "
+        note = f" ({below})" if below and not ambiguous else ""
+        return (f"the views do not determine the water's {'; '.join(parts)}{note}: the "
                 "restored images rest on them")
 
     def _undetermined_by_reason(self) -> tuple[list[str], list[tuple[str, float]]]:
