@@ -182,7 +182,10 @@ def model_surfaces(sim: Path, train: Path, regroup: bool = False, up_now: bool =
                      torch.cat(opacity), factor * config.medium.refit_voxel * diagonal,
                      config.medium.refit_opacity,
                      open_water_opacity=refit_open_water_opacity(config.medium, in_view, 1.0),
-                     open_water=rays.open_water, below_horizon=below)
+                     open_water=rays.open_water, below_horizon=below,
+                     open_water_surface_within=config.medium.open_water_surface_share
+                     * rays.far.reshape(-1) if config.medium.open_water_surfaces_from <= 1.0
+                     else None)
         for factor in (1.0, *(config.medium.interval_voxel_factors if regroup else ()))]
     report = read_water(train / "water.json")
     truth = read_truth_water(sim / "truth" / "water.json").scaled(1 / report.scale).as_dict()

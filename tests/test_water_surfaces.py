@@ -166,6 +166,31 @@ def test_open_water_below_the_horizon_is_used_only_where_none_looks_above():
     assert int(torch.isinf(unknown.ranges).sum()) == 600 and not unknown.open_water_below_horizon
 
 
+def test_open_water_the_model_renders_as_a_near_surface_is_that_surface():
+    """Turbid water's far seabed joins the photographs' open water; a converged model places
+    it. Opaque rays short of the given range become surfaces at their depth; empty ones and
+    the density a model piles at its far bound stay open water."""
+    count = 4000
+    origins, directions, depth, opacity = _opaque_rays(np.random.default_rng(12), count)
+    rgb = torch.rand(count, 3, dtype=torch.float64)
+    photo = torch.zeros(count, dtype=torch.bool)
+    photo[:900] = True
+    opacity[:300] = 0.02                          # real open water, rendered empty
+    depth[300:600] = 7.9                          # a density wall at the far bound (8)
+    # 600-899: seabed 1-6 units away, rendered opaque where it is
+    within = torch.full((count,), 0.9 * 8.0, dtype=torch.float64)
+    common = dict(voxel=100.0, min_pixels=10, open_water_opacity=0.1, open_water=photo)
+    before = surface_data(origins, directions, rgb, depth, opacity, **common)
+    after = surface_data(origins, directions, rgb, depth, opacity, **common,
+                         open_water_surface_within=within)
+    assert int(torch.isinf(before.ranges).sum()) == 900
+    assert int(torch.isinf(after.ranges).sum()) == 600
+    assert len(after.ranges) == len(before.ranges)
+    seabed = set(depth[600:900].tolist())
+    assert seabed <= set(after.ranges[torch.isfinite(after.ranges)].tolist())
+    assert not seabed & set(before.ranges[torch.isfinite(before.ranges)].tolist())
+
+
 def test_pixels_of_one_surface_point_fit_the_water_closer_than_voxel_groups():
     # The simulated survey's exact images and ranges through a perfect "model" (its depth is the
     # true range, opaque on surfaces): the same number of surface pixels, grouped by the point

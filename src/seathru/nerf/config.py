@@ -190,6 +190,16 @@ class MediumConfig:
                   "never; such rays are mostly holes in unfinished surfaces, whose colour put "
                   "c_med up to 6x off on simulated transects with an interval of +-10%); the "
                   "photographs' open water is used from the first refit")
+    open_water_surfaces_from: float = setting(
+        0.6, help="progress from which refits and the final water assessment take a pixel of "
+                  "the photographs' open water that the model renders as an opaque surface "
+                  "short of open_water_surface_share of the far bound as that surface, not "
+                  "as the veiling light (turbid water's far seabed is smooth and fills the "
+                  "top of the frame; the model, converged, places it); above 1 = never")
+    open_water_surface_share: float = setting(
+        0.9, help="see open_water_surfaces_from: nearer than this share of a ray's far bound "
+                  "(the density a model puts at its far bound in real open water is not a "
+                  "surface)")
     dark_pixel_bound: bool = setting(True, help="refits keep the backscatter below the darkest "
                                                 "pixels at each range (Sea-thru's dark-pixel "
                                                 "estimate)")

@@ -97,11 +97,14 @@ class WaterRefitting:
         open_water = refit_open_water_opacity(c.medium, rays.open_water is not None,
                                               self._progress())
         below = below_horizon(rays.directions, model.scene.get("up"), c.medium.horizon_margin)
+        within = c.medium.open_water_surface_share * rays.far.reshape(-1) \
+            if self._progress() >= c.medium.open_water_surfaces_from else None
         # the first grouping is the refit's own; other factors regroup the same pixels by voxel
         return [surface_data(rays.origins, rays.directions, rays.rgb, depth, opacity,
                              factor * c.medium.refit_voxel * diagonal, c.medium.refit_opacity,
                              open_water_opacity=open_water, open_water=rays.open_water,
-                             below_horizon=below, point_ids=point_ids if i == 0 else None)
+                             below_horizon=below, point_ids=point_ids if i == 0 else None,
+                             open_water_surface_within=within)
                 for i, factor in enumerate(voxel_factors)]
 
     def _fit_surfaces(self, data: SurfaceData, start: dict) -> tuple[WaterFit, SurfaceData]:

@@ -35,8 +35,8 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
                  opacity: Tensor, voxel: float, min_opacity: float = 0.9,
                  min_pixels: int = 1000, open_water_opacity: float = 0.0,
                  open_water: Tensor | None = None, below_horizon: Tensor | None = None,
-                 min_above_horizon: float = 0.2, point_ids: Tensor | None = None
-                 ) -> SurfaceData | str:
+                 min_above_horizon: float = 0.2, point_ids: Tensor | None = None,
+                 open_water_surface_within: Tensor | None = None) -> SurfaceData | str:
     """The pixels a water fit can use, from rays rendered by the model.
 
     Args:
@@ -70,11 +70,20 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
         point_ids: (R,) long or None: rays with the same id look at the same surface point
             (:func:`correspondence_rays`); given, they are grouped by it instead of by voxel
             (``voxel`` is then unused), and rays with id -1 are no surface.
+        open_water_surface_within: (R,) ranges or None: given, a ray of the photographs' open
+            water that the model renders as an opaque surface (``opacity`` above
+            ``min_opacity``) nearer than its range here is that surface, not open water. In
+            turbid water far seabed is smooth and fills the top of the frame: on the
+            simulator's turbid transects and orbits every such pixel had seabed 3-11 m away,
+            which a converged model places where the truth has it (95-96% opaque; on the
+            surveys the opaque share matched the truth's seabed share within 2 points).
 
     Returns:
         the data, or a sentence saying why there is not enough of it.
     """
     keep = (opacity > min_opacity) & torch.isfinite(depth)
+    if open_water is not None and open_water_surface_within is not None:
+        open_water = open_water & ~(keep & (depth < open_water_surface_within))
     if open_water is not None:
         keep &= ~open_water
     if point_ids is not None:
