@@ -144,7 +144,8 @@ def trained_dive(sim: Path, train: Path):
     return model, cameras, frames, images, masks, water_masks, in_view
 
 
-def model_surfaces(sim: Path, train: Path, regroup: bool = False, up_now: bool = False):
+def model_surfaces(sim: Path, train: Path, regroup: bool = False, up_now: bool = False,
+                   open_water_surfaces: bool | None = None):
     """The surface data of a trained model as its final water assessment builds it (all
     training rays, not less the medium-selection hold-out; open water from the photographs
     where in view, and whether it looks below the horizon), its model and the truth (in
@@ -152,7 +153,10 @@ def model_surfaces(sim: Path, train: Path, regroup: bool = False, up_now: bool =
     ``regroup`` the same pixels grouped at each of the model's
     ``medium.interval_voxel_factors`` times the refit voxel, else []). ``up_now``: the
     vertical estimated from the training cameras by this code (``geometry.upright``), as a
-    model trained now would hold it, instead of the one the model was saved with."""
+    model trained now would hold it, instead of the one the model was saved with.
+    ``open_water_surfaces``: whether the photographs' open water the model renders as a near
+    surface is that surface (``water_surfaces.surface_data``; None: as the model's config
+    says at the end of a run)."""
     from seathru.io.water import read_truth_water, read_water
     from seathru.nerf.rays import RayDataset
     from seathru.nerf.water_refit import below_horizon, refit_open_water_opacity
@@ -177,15 +181,17 @@ def model_surfaces(sim: Path, train: Path, regroup: bool = False, up_now: bool =
         estimate = estimate_up(np.stack([f.c2w_array for f in frames]))
         up = None if estimate is None else list(estimate.vector)
     below = below_horizon(rays.directions, up, config.medium.horizon_margin)
+    if open_water_surfaces is None:
+        open_water_surfaces = config.medium.open_water_surfaces_from <= 1.0
+    within = config.medium.open_water_surface_share * rays.far.reshape(-1) \
+        if open_water_surfaces else None
     data, *regrouped = [
         surface_data(rays.origins, rays.directions, rays.rgb, torch.cat(depth),
                      torch.cat(opacity), factor * config.medium.refit_voxel * diagonal,
                      config.medium.refit_opacity,
                      open_water_opacity=refit_open_water_opacity(config.medium, in_view, 1.0),
                      open_water=rays.open_water, below_horizon=below,
-                     open_water_surface_within=config.medium.open_water_surface_share
-                     * rays.far.reshape(-1) if config.medium.open_water_surfaces_from <= 1.0
-                     else None)
+                     open_water_surface_within=within)
         for factor in (1.0, *(config.medium.interval_voxel_factors if regroup else ()))]
     report = read_water(train / "water.json")
     truth = read_truth_water(sim / "truth" / "water.json").scaled(1 / report.scale).as_dict()
