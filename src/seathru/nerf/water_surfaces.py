@@ -54,7 +54,8 @@ def surface_data(origins: Tensor, directions: Tensor, rgb: Tensor, depth: Tensor
             whatever the model's opacity (a half-trained model fills open water with floaters
             and leaves dark holes elsewhere, and either pulls ``c_med`` away: on the survey demo
             0.4% of such rays, wrongly taken as open water, put ``c_med`` 27-37% low), and they
-            are never surfaces; they are used whenever ``open_water_opacity`` is above 0.
+            are no surfaces unless ``open_water_surface_within`` says so; they are used
+            whenever ``open_water_opacity`` is above 0.
 
             Of these, only pixels of the open water's typical colour are used
             (:func:`typical_open_water`).
