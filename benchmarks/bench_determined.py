@@ -54,9 +54,8 @@ def assess(model_dir: str, stored_up: bool = False, open_water_surfaces: bool = 
     import torch
 
     from bench_water_intervals import model_surfaces
-    from seathru.nerf.water_fit import fit_surfaces
     from seathru.nerf.water_interval import interval_halfwidth
-    from seathru.nerf.water_refit import assessment_spread
+    from seathru.nerf.water_refit import assessment_spread, medium_surface_fit
     from seathru.nerf.water_uncertainty import ambiguity_halfwidths
 
     torch.set_num_threads(1)
@@ -73,9 +72,7 @@ def assess(model_dir: str, stored_up: bool = False, open_water_surfaces: bool = 
     if isinstance(data, str):
         return {**record, "skipped": data}
     medium = model.config.medium
-    fit, data = fit_surfaces(data, trained, medium.refit_steps, model.medium.colour_max,
-                             medium.dark_pixel_bound, medium.balance_brightness,
-                             medium.refit_trim, medium.refit_noise_term)
+    fit, data = medium_surface_fit(data, trained, medium, model.medium.colour_max)
     spread, _ = assessment_spread(fit, data, regrouped, medium, model.medium.colour_max)
     ambiguity = ambiguity_halfwidths(spread)
     params = []

@@ -50,8 +50,8 @@ BEND = 0.1
 
 def assess(sim: Path, train: Path, arms: list[str]) -> dict:
     from bench_water_intervals import model_surfaces
-    from seathru.nerf.water_fit import fit_surfaces
     from seathru.nerf.water_interval import interval_halfwidth
+    from seathru.nerf.water_refit import medium_surface_fit
     from seathru.nerf.water_uncertainty import (far_surface_range, interval_determined,
                                                 robust_halfwidths)
 
@@ -60,9 +60,7 @@ def assess(sim: Path, train: Path, arms: list[str]) -> dict:
     if isinstance(data, str):
         return {**row, "skipped": data}
     medium = model.config.medium
-    fit, used = fit_surfaces(data, trained, medium.refit_steps, model.medium.colour_max,
-                             medium.dark_pixel_bound, medium.balance_brightness,
-                             medium.refit_trim, medium.refit_noise_term)
+    fit, used = medium_surface_fit(data, trained, medium, model.medium.colour_max)
     beyond = far_surface_range(used.ranges) if used.open_water_below_horizon else None
     row["surface_fit"] = {k: getattr(fit, k) for k in KEYS}
     row["open_water_pixels"] = int((~torch.isfinite(used.ranges)).sum())

@@ -201,7 +201,7 @@ def model_surfaces(sim: Path, train: Path, regroup: bool = False, up_now: bool =
 def assess_model(sim: Path, train: Path) -> dict:
     """Curvature and robust intervals of one trained model's surface fit against the truth
     (normalised units)."""
-    from seathru.nerf.water_fit import fit_surfaces
+    from seathru.nerf.water_refit import medium_surface_fit
     from seathru.nerf.water_uncertainty import laplace_halfwidths, robust_halfwidths
 
     data, model, truth, trained, scale, _ = model_surfaces(sim, train)
@@ -211,9 +211,7 @@ def assess_model(sim: Path, train: Path) -> dict:
         return {**record, "skipped": data}
     config = model.config
     dark = data.dark if config.medium.dark_pixel_bound else None
-    fit, data = fit_surfaces(data, trained, config.medium.refit_steps, model.medium.colour_max,
-                             config.medium.dark_pixel_bound, config.medium.balance_brightness,
-                             config.medium.refit_trim, config.medium.refit_noise_term)
+    fit, data = medium_surface_fit(data, trained, config.medium, model.medium.colour_max)
     centre = {k: getattr(fit, k) for k in KEYS}
     started = time.perf_counter()
     robust = robust_halfwidths(fit, data.ranges, data.observed, data.ids, data.groups,

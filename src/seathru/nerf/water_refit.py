@@ -108,12 +108,7 @@ class WaterRefitting:
                 for i, factor in enumerate(voxel_factors)]
 
     def _fit_surfaces(self, data: SurfaceData, start: dict) -> tuple[WaterFit, SurfaceData]:
-        """The water fitted to ``data`` from ``start`` with the medium's refit settings, and
-        the pixels it used (``water_fit.fit_surfaces``)."""
-        medium = self.config.medium
-        return fit_surfaces(data, start, medium.refit_steps, self.model.medium.colour_max,
-                            medium.dark_pixel_bound, medium.balance_brightness,
-                            medium.refit_trim, medium.refit_noise_term)
+        return medium_surface_fit(data, start, self.config.medium, self.model.medium.colour_max)
 
     def _skip_refits_passed_meanwhile(self) -> None:
         """Record the refit points training passed while the last refit ran as skipped.
@@ -213,6 +208,14 @@ class WaterRefitting:
                 "groups": fit.groups,
                 "effective_samples": spread.effective_samples,
                 **({"open_water_beyond": beyond} if beyond is not None else {})}
+
+
+def medium_surface_fit(data: SurfaceData, start: dict, medium, colour_max: float
+                       ) -> tuple[WaterFit, SurfaceData]:
+    """The water fitted to ``data`` from ``start`` with the ``medium`` config's refit
+    settings, and the pixels it used (``water_fit.fit_surfaces``)."""
+    return fit_surfaces(data, start, medium.refit_steps, colour_max, medium.dark_pixel_bound,
+                        medium.balance_brightness, medium.refit_trim, medium.refit_noise_term)
 
 
 def assessment_spread(fit: WaterFit, data: SurfaceData, regrouped: Sequence[SurfaceData | str],
