@@ -86,7 +86,8 @@ def main() -> None:
              "an opaque surface short of 0.9 of its far bound (what the refits from "
              "`medium.open_water_surfaces_from` take as surfaces), and the share it renders "
              "empty (object opacity below 0.1).", "",
-             "| dive | mask pixels | seabed (truth) | rendered as a near surface | rendered empty |",
+             "| dive | mask pixels | seabed (truth) | rendered as a near surface | "
+             "rendered empty |",
              "|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['dive']} | {r['flagged']} | {100 * r['seabed_truth']:.0f}% | "
