@@ -5,9 +5,8 @@ roll), so each camera's x axis (image right) is nearly horizontal; the vertical 
 all of them are perpendicular to. When the diver looked in one direction only (a transect), the
 x axes are all alike and leave the vertical free to turn about them. A diver also holds a depth
 while swimming a transect, so where the cameras moved along a line across their x axes, that
-line is a second horizontal direction ("level path"; off by the path's slope, where the
-cameras' mean up axis is off by their pitch: 45 degrees on the simulator's transects, whose
-open water then looked above the horizon though it is seabed). Otherwise the cameras' mean up
+line is a second horizontal direction ("level path": off by the path's slope, where the
+cameras' mean up axis is off by their pitch; docs/water.md). Otherwise the cameras' mean up
 axis is taken.
 """
 
