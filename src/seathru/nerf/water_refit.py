@@ -94,11 +94,11 @@ class WaterRefitting:
             rendered = self.render_batch(rays)
             depth, opacity = rendered["depth_median"], rendered["opacity"]
         diagonal = float(torch.linalg.norm(model.box.box_max - model.box.box_min))
-        open_water = refit_open_water_opacity(c.medium, rays.open_water is not None,
-                                              self._progress())
+        progress = self._progress()
+        open_water = refit_open_water_opacity(c.medium, rays.open_water is not None, progress)
         below = below_horizon(rays.directions, model.scene.get("up"), c.medium.horizon_margin)
         within = c.medium.open_water_surface_share * rays.far.reshape(-1) \
-            if self._progress() >= c.medium.open_water_surfaces_from else None
+            if progress >= c.medium.open_water_surfaces_from else None
         # the first grouping is the refit's own; other factors regroup the same pixels by voxel
         return [surface_data(rays.origins, rays.directions, rays.rgb, depth, opacity,
                              factor * c.medium.refit_voxel * diagonal, c.medium.refit_opacity,
