@@ -35,6 +35,7 @@ def seabed_shares(sim: Path, variant: str = "cues") -> dict:
     """Shares of the photographs' open-water training pixels of one dive: with a true surface,
     rendered as a near surface, rendered empty (every pixel of the mask, every training view)."""
     from bench_water_intervals import trained_dive
+    from seathru.geometry.upright import estimate_up
     from seathru.io.images import read_image
     from seathru.nerf.rays import frame_rays
 
@@ -62,7 +63,12 @@ def seabed_shares(sim: Path, variant: str = "cues") -> dict:
         surface += int((opaque & short).sum())
         empty += int((render.opacity < medium.open_water_opacity).sum())
     share = (lambda n: n / flagged) if flagged else (lambda n: float("nan"))
+    up = estimate_up(np.stack([f.c2w_array for f in frames]))
+    # the simulator's world is z up, and the true cameras differ from it by a scale and shift
+    tilt = float("nan") if up is None else float(np.degrees(np.arccos(np.clip(up.vector[2],
+                                                                                -1, 1))))
     return {"dive": sim.name, "open_water_in_view": bool(in_view), "flagged": flagged,
+            "vertical": "none" if up is None else up.method, "vertical_error_deg": tilt,
             "seabed_truth": share(seabed), "rendered_surface": share(surface),
             "rendered_empty": share(empty)}
 
@@ -85,13 +91,15 @@ def main() -> None:
              "a surface in the simulator's true depth, the share the trained model renders as "
              "an opaque surface short of 0.9 of its far bound (what the refits from "
              "`medium.open_water_surfaces_from` take as surfaces), and the share it renders "
-             "empty (object opacity below 0.1).", "",
+             "empty (object opacity below 0.1); and the vertical `geometry.upright` "
+             "estimates from the training cameras, with its angle to the true one.", "",
              "| dive | mask pixels | seabed (truth) | rendered as a near surface | "
-             "rendered empty |",
-             "|---|---|---|---|---|"]
+             "rendered empty | vertical (method, degrees off) |",
+             "|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['dive']} | {r['flagged']} | {100 * r['seabed_truth']:.0f}% | "
-                     f"{100 * r['rendered_surface']:.0f}% | {100 * r['rendered_empty']:.0f}% |")
+                     f"{100 * r['rendered_surface']:.0f}% | {100 * r['rendered_empty']:.0f}% | "
+                     f"{r['vertical']}, {r['vertical_error_deg']:.1f} |")
     lines += ["", "Dives: " + ", ".join(f"`{d}`" for d in args.work) + ".", "",
               footer(load, started), ""]
     args.out.write_text("\n".join(lines))
