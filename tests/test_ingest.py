@@ -457,6 +457,20 @@ def test_linear_png_subfolder_downscale_and_max_size(tmp_path):
                                downscale_local_mean(images["i1"] / 65535.0, (2, 2, 1)), rtol=1e-5)
 
 
+def test_large_photographs_are_downscaled_by_default_and_kept_whole_on_request(tmp_path):
+    folder = tmp_path / "dive"
+    folder.mkdir()
+    rng = np.random.default_rng(5)
+    for name in ("a", "b", "c"):
+        cv2.imwrite(str(folder / f"{name}.jpg"), rng.integers(0, 255, (1000, 2000, 3), np.uint8))
+    default = run_ingest("--input", folder, "--out", tmp_path / "default", "--workers", 1)
+    assert {(i["width"], i["height"]) for i in default["images"]} == {(1600, 800)}
+    assert default["settings"]["max_size"] == 1600
+    whole = run_ingest("--input", folder, "--out", tmp_path / "whole", "--max-size", 0,
+                       "--workers", 1)
+    assert {(i["width"], i["height"]) for i in whole["images"]} == {(2000, 1000)}
+
+
 def test_file_selection_kinds_duplicates_and_hints(tmp_path):
     folder = tmp_path / "mixed"
     folder.mkdir()

@@ -280,6 +280,18 @@ def test_train_step_leaves_denormals_as_it_found_them(default_scene, tmp_path):
     assert not _denormals_flushed()
 
 
+def test_train_step_stops_before_reading_images_that_would_not_fit(default_scene, tmp_path,
+                                                                   monkeypatch, capsys):
+    from seathru.nerf import device
+
+    monkeypatch.setattr(device, "available_memory_bytes", lambda: device.TRAINING_MEMORY_BASE)
+    code = cli_main(["train", "--cameras", str(default_scene / "cameras.json"), "--out",
+                     str(tmp_path / "train"), "--threads", "1", "--steps", "3"])
+    assert code == 2
+    assert "ingest.max_size=" in capsys.readouterr().err
+    assert not (tmp_path / "train").exists()
+
+
 def test_open_water_rays_pay_for_object_opacity_while_the_veiling_light_varies():
     import dataclasses
 

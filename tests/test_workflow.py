@@ -386,6 +386,26 @@ def test_each_source_reaches_its_images_and_poses(tmp_path):
     assert "--kind" not in argv("ingest", "sim_jpeg")
 
 
+def test_the_community_protocol_ingests_at_full_resolution_unless_told(tmp_path):
+    """ingest.max_size downscales large photographs by default; NerfBaselines' protocol
+    compares with the stored images as they are, so a row asking for it ingests them whole."""
+    rows = []
+    for dataset, options in (("plain", ""), ("protocol", "evaluate.protocol=nerfbaselines"),
+                             ("sized", "evaluate.protocol=nerfbaselines; ingest.max_size=800")):
+        (tmp_path / dataset).mkdir()
+        rows.append(f"{dataset}\tllff\t{tmp_path / dataset}\t{options}")
+    result = snakemake("-n", "-p", "--cores", "1", "--forceall", "--config",
+                       f"datasets={_sheet(tmp_path, rows)}")
+    assert result.returncode == 0, result.stderr[-3000:]
+    commands = _shell_commands(result.stdout)
+    assert "--max-size" not in commands[("ingest", "plain")]
+    assert "--max-size 0 " in commands[("ingest", "protocol")]
+    assert "--max-size 800 " in commands[("ingest", "sized")]
+    helpers = workflow_helpers()
+    assert helpers["ingest_for_protocol"]({"workers": 2}, {"protocol": "seathru"}) == \
+        {"workers": 2}
+
+
 def test_paths_with_spaces_reach_every_step_whole(tmp_path):
     """A dive folder named as people name them ("Dive 3 - reef") and a results folder with a
     space in it: every path of every step's shell line parses back whole."""

@@ -345,6 +345,19 @@ def sweep_runs(dataset, cell, options, variants, config, schema, where):
     return runs
 
 
+def ingest_for_protocol(ingest, evaluate):
+    """The ingest options of a dataset whose evaluation runs NerfBaselines' protocol: its
+    images at full resolution (``max_size: 0``) unless the options set a size, since the
+    protocol compares renders with the stored images as they are.
+
+    >>> ingest_for_protocol({}, {"protocol": "nerfbaselines"})
+    {'max_size': 0}
+    """
+    if (evaluate or {}).get("protocol") == "nerfbaselines" and "max_size" not in (ingest or {}):
+        return {**(ingest or {}), "max_size": 0}
+    return ingest
+
+
 def sweep_flags(sweep):
     """The report's ``--variants NAME=OPTIONS ...`` (shell-quoted), or "" without a sweep."""
     pairs = [f"{name}={text or ''}" for name, text in (sweep or {}).items()]
@@ -426,7 +439,10 @@ def id_pattern(ids):
 def step_options(dataset, step):
     """The step's configuration for one dataset: the config section updated by the sheet's
     options (nested sections merged key by key)."""
-    return deep_merge(config.get(step) or {}, OPTIONS.get(dataset, {}).get(step, {}))
+    merged = deep_merge(config.get(step) or {}, OPTIONS.get(dataset, {}).get(step, {}))
+    if step == "ingest":
+        return ingest_for_protocol(merged, step_options(dataset, "evaluate"))
+    return merged
 
 
 def flags(step):

@@ -64,7 +64,7 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
                                      write_snapshots)
     from seathru.io.warnings import step_warning, write_warnings
     from seathru.io.water import WaterReport, write_water
-    from seathru.nerf.device import select_device
+    from seathru.nerf.device import check_training_memory, select_device
     from seathru.nerf.prepare import prepare_run, seed_everything
     from seathru.nerf.snapshots import QualitySnapshots
     from seathru.nerf.training import TrainCallbacks, Trainer
@@ -77,6 +77,7 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
         raise PipelineError(f"{cameras_path}: no frame has split 'train'")
     if not test_frames:
         log.warning("%s: no test frames; the log has no held-out PSNR", cameras_path)
+    check_training_memory(train_frames + test_frames, str(cameras_path))
     started = time.perf_counter()
     inputs = read_training_inputs(cameras, train_frames, test_frames, config.glare,
                                   config.frame_colour)
