@@ -34,6 +34,24 @@ def test_available_memory_is_read_on_linux():
     assert available is not None and 0 < available < 1 << 50
 
 
+def test_a_control_group_limit_counts_what_its_processes_hold_not_their_cache(tmp_path):
+    meminfo = tmp_path / "meminfo"
+    meminfo.write_text("MemTotal:       65000000 kB\nMemAvailable:   60000000 kB\n")
+    v2 = tmp_path / "v2"
+    v2.mkdir()
+    (v2 / "memory.max").write_text("16000000000\n")
+    (v2 / "memory.stat").write_text("anon 4000000000\nfile 9000000000\n")
+    assert available_memory_bytes(meminfo, v2) == 12_000_000_000
+    (v2 / "memory.max").write_text("max\n")   # no limit: the machine's
+    assert available_memory_bytes(meminfo, v2) == 60_000_000 * 1024
+    v1 = tmp_path / "v1"
+    (v1 / "memory").mkdir(parents=True)
+    (v1 / "memory" / "memory.limit_in_bytes").write_text("8000000000\n")
+    (v1 / "memory" / "memory.stat").write_text("cache 5000000000\ntotal_rss 3000000000\n")
+    assert available_memory_bytes(meminfo, v1) == 5_000_000_000
+    assert available_memory_bytes(tmp_path / "none", tmp_path / "none") is None
+
+
 def test_a_dive_of_full_size_frames_fails_before_reading_with_a_size_that_fits():
     frames = _frames(40, 6000, 4000)   # 24 MP frames
     available = 16_000_000_000

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import torch
 
@@ -47,28 +48,41 @@ BYTES_PER_TRAINING_PIXEL = 170
 TRAINING_MEMORY_BASE = 1_000_000_000   # torch, the model, the water fits
 
 
-def available_memory_bytes() -> int | None:
+def available_memory_bytes(meminfo: Path = Path("/proc/meminfo"),
+                           cgroup: Path = Path("/sys/fs/cgroup")) -> int | None:
     """Memory this process may still take: the smaller of the machine's available memory and
-    what its control group (a SLURM job's allocation, a container's limit) leaves; None where
-    neither can be read (not Linux)."""
+    what its control group (a SLURM job's allocation, a container's limit; cgroup v2 or v1)
+    leaves beside the memory its processes hold (their page cache left out: the kernel
+    reclaims it); None where neither can be read (not Linux)."""
     limits = []
-    try:
-        for line in open("/proc/meminfo", encoding="ascii"):
-            if line.startswith("MemAvailable:"):
-                limits.append(int(line.split()[1]) * 1024)
-    except OSError:
-        pass
-    for limit_file, usage_file in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
-                                   ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
-                                    "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
+    machine = _fields(meminfo)
+    if "MemAvailable:" in machine:
+        limits.append(machine["MemAvailable:"] * 1024)
+    for folder, limit_name, held_name in ((cgroup, "memory.max", "anon"),
+                                          (cgroup / "memory", "memory.limit_in_bytes",
+                                           "total_rss")):
         try:
-            limit = open(limit_file, encoding="ascii").read().strip()
-            usage = int(open(usage_file, encoding="ascii").read().strip())
-        except (OSError, ValueError):
+            limit = (folder / limit_name).read_text().strip()
+        except OSError:
             continue
-        if limit.isdigit() and int(limit) < 1 << 60:
-            limits.append(max(0, int(limit) - usage))
+        held = _fields(folder / "memory.stat").get(held_name)
+        if limit.isdigit() and int(limit) < 1 << 60 and held is not None:
+            limits.append(max(0, int(limit) - held))
     return min(limits) if limits else None
+
+
+def _fields(path: Path) -> dict[str, int]:
+    """``name value`` lines of a /proc or cgroup file as a dict ({} where it cannot be read)."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError:
+        return {}
+    fields = {}
+    for line in lines:
+        parts = line.split()
+        if len(parts) >= 2 and parts[1].isdigit():
+            fields[parts[0]] = int(parts[1])
+    return fields
 
 
 def check_training_memory(frames, where: str, available: int | None = None) -> int:
