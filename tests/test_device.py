@@ -60,12 +60,12 @@ def test_a_dive_of_full_size_frames_fails_before_reading_with_a_size_that_fits()
     message = str(error.value)
     assert message.startswith("dive/poses/cameras.json: training on 960 million pixels")
     suggested = int(message.split("ingest.max_size=")[1].split()[0])
-    # The suggested long edge fits, and one step of 100 px more would not by much.
+    # The suggested long edge fits with a fifth to spare, and 100 px more would not.
     scale = suggested / 6000
     fitting = _frames(40, int(6000 * scale), int(4000 * scale))
-    assert check_training_memory(fitting, "x", available=available) <= available
+    assert check_training_memory(fitting, "x", available=available) <= 0.8 * available
     assert TRAINING_MEMORY_BASE + BYTES_PER_TRAINING_PIXEL * 40 * (suggested + 100) ** 2 \
-        * 4000 / 6000 > 0.95 * available
+        * 4000 / 6000 > 0.8 * available
 
 
 def test_a_dataset_that_fits_passes_and_reports_its_estimate():

@@ -109,7 +109,8 @@ def check_training_memory(frames, where: str, available: int | None = None) -> i
     available = available_memory_bytes() if available is None else available
     if available is not None and need > available:
         largest = max(max(int(f.width), int(f.height)) for f in frames)
-        fits = largest * math.sqrt(max(0, available - TRAINING_MEMORY_BASE)
+        # a fifth kept back: the estimate is a peak measured on two dives, not a bound
+        fits = largest * math.sqrt(max(0, 0.8 * available - TRAINING_MEMORY_BASE)
                                    / (BYTES_PER_TRAINING_PIXEL * pixels))
         raise PipelineError(
             f"{where}: training on {pixels / 1e6:.0f} million pixels ({len(frames)} images, "
