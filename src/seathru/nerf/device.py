@@ -41,10 +41,12 @@ def select_device(name: str = "auto", threads: int | None = None) -> torch.devic
     return device
 
 
-# Peak resident memory of the train step per training pixel, above its fixed part: the images,
-# their deblurred copies and the rays, with the copies made while they are gathered (measured
-# with /usr/bin/time on the demo, 1.6 million pixels, 0.82 GB, and d3_reef, 6.5 million, 1.64 GB).
-BYTES_PER_TRAINING_PIXEL = 170
+# Peak resident memory of the train step per pixel of the images it reads, above its fixed
+# part: the images, their deblurred copies and the rays, with the copies made while they are
+# gathered. Measured peaks (training and held-out pixels): the demo, 1.8 million, 0.82 GB;
+# d3_reef, 7.7 million, 1.64 GB; d3_reef's frames at 1600x1200, 37.8 million, 4.96 GB (110-140
+# bytes a pixel between them); the estimate lies 20-50% above each.
+BYTES_PER_TRAINING_PIXEL = 130
 TRAINING_MEMORY_BASE = 1_000_000_000   # torch, the model, the water fits
 
 

@@ -69,8 +69,8 @@ class Settings:
     mask_dilation: int = setting(1, help="pixels the clipped-pixel mask grows by")
     max_size: int = setting(
         1600, help="long edge of linear/ in pixels: larger photographs are downscaled to it, "
-                   "as nerfstudio does by default (training holds about 170 bytes a pixel: a "
-                   "24 MP frame 4 GB); 0: full resolution (the workflow's default where "
+                   "as nerfstudio does by default (training holds about 130 bytes a pixel: a "
+                   "24 MP frame 3 GB); 0: full resolution (the workflow's default where "
                    "evaluate.protocol=nerfbaselines)")
     matching_max_size: int = setting(
         0, help="long edge of matching/ in pixels (0: same as linear/)")
