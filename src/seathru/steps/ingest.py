@@ -12,8 +12,7 @@ decoded by the curve the file's ICC profile records, else sRGB's; ``auto``: RAW 
 over sRGB): ``seathru.io.image_folder``. Exposure (k_i = median(E) / E_i, E = t * ISO / N^2 from
 EXIF) and white balance (--wb, percentile: the SeaThru-NeRF recipe):
 ``seathru.radiometry.dataset_transform``. Masks: clipped pixels (``seathru.radiometry.linearise``)
-grown by --mask-dilation, or a layout's own. Unusable files are rejected with a reason, the rest
-go on (fewer than --min-images: the step fails); decoded in --workers spawned processes.
+grown by --mask-dilation, or a layout's own. Unusable files are rejected with a reason.
 """
 
 from __future__ import annotations
@@ -67,11 +66,8 @@ class Settings:
     saturation_threshold: float = setting(
         0.98, help="RAW samples at or above this fraction of the white level are saturated")
     mask_dilation: int = setting(1, help="pixels the clipped-pixel mask grows by")
-    max_size: int = setting(
-        1600, help="long edge of linear/ in pixels: larger photographs are downscaled to it, "
-                   "as nerfstudio does by default (training holds about 130 bytes a pixel: a "
-                   "24 MP frame 3 GB); 0: full resolution (the workflow's default where "
-                   "evaluate.protocol=nerfbaselines)")
+    max_size: int = setting(1600, help="long edge of linear/ in pixels, larger photographs "
+                            "downscaled (as nerfstudio); 0: full size (README: memory, protocol)")
     matching_max_size: int = setting(
         0, help="long edge of matching/ in pixels (0: same as linear/)")
     downscale: list[int] = setting(
