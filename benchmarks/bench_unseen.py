@@ -111,7 +111,8 @@ def main() -> None:
     text = [
         "# The goals on dives no other benchmark holds (`benchmarks/bench_unseen.py`)", "",
         "Each row a sheet row through the workflow (`snakemake --cores "
-        f"{args.cores}`, the shipped `config/config.yaml`, COLMAP poses, 3-min training) in "
+        f"{args.cores}`, the shipped `config/config.yaml` with `{FAST}`, COLMAP poses, 3-min "
+        f"training) in "
         f"`{args.work}`; errors signed, R, G, B, against the simulator's truth; `?` flagged as "
         "not determined in water.json, `!` its 95% interval missing the truth.", "",
         *lines, "",

@@ -43,9 +43,10 @@ def select_device(name: str = "auto", threads: int | None = None) -> torch.devic
 
 # Peak resident memory of the train step per pixel of the images it reads, above its fixed
 # part: the images, their deblurred copies and the rays, with the copies made while they are
-# gathered. Measured peaks (training and held-out pixels): the demo, 1.8 million, 0.82 GB;
-# d3_reef, 7.7 million, 1.64 GB; d3_reef's frames at 1600x1200, 37.8 million, 4.96 GB (110-140
-# bytes a pixel between them); the estimate lies 20-50% above each.
+# gathered. Peaks of whole workflow runs (max_rss in logs/<dataset>/train.benchmark.tsv;
+# training and held-out pixels): the demo, 1.8 million, 1.19 GB; d3_reef, 7.7 million, 1.45 GB;
+# d3_reef's frames at 1600x1200, 37.8 million, 4.96 GB (benchmarks/results/new_user_s48.md).
+# The estimate lies 4-38% above each.
 BYTES_PER_TRAINING_PIXEL = 130
 TRAINING_MEMORY_BASE = 1_000_000_000   # torch, the model, the water fits
 
