@@ -41,9 +41,10 @@ def trial_gain(scene: Path, tint: float, select_at: float, seed: int) -> float:
     cameras = read_cameras(scene / "cameras.json")
     train = cameras.split("train")
     data = RayDataset(train, [read_image(cameras.image_path(f)) for f in train])
-    data.rays.rgb = data.rays.rgb * (1 + tint * data.rays.directions[:, :1])
+    directions = data.batch(torch.arange(len(data))).directions
+    data.rgb = data.rgb * (1 + tint * directions[:, :1])
     description = scene_from_frames(train, cameras.near, cameras.far, cameras.centre,
-                                    cameras.scale, data.rays.rgb.mean(0).tolist())
+                                    cameras.scale, data.rgb.mean(0).tolist())
     config = settings.from_mapping(TrainConfig, {
         "preset": "balanced", "steps": 300, "max_minutes": 0, "batch_rays": 256,
         "eval_rays": 256, "medium": {"mode": "global"},

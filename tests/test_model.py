@@ -127,10 +127,47 @@ def test_ray_dataset_drops_masked_and_nonfinite_pixels():
     assert len(data) == 10 and data.dropped_nonfinite == 1
     batch = data.sample(5, torch.Generator().manual_seed(0))
     assert batch.rgb.shape == (5, 3) and torch.all(batch.near == frame.near)
+    before = data.pixel_ids.clone()
     held = data.hold_out(3, seed=0)
     assert len(held) == 3 and len(data) == 7
-    remaining = {tuple(d.tolist()) for d in data.rays.directions}
+    remaining = {tuple(d.tolist()) for d in data.batch(torch.arange(len(data))).directions}
     assert not any(tuple(d.tolist()) in remaining for d in held.directions)
+    # the rest stay in pixel order, each with its own colour and ray
+    assert torch.all(data.pixel_ids[1:] > data.pixel_ids[:-1])
+    assert len(set(before.tolist()) - set(data.pixel_ids.tolist())) == 3
+    rest = RayDataset([frame], [image], [mask]).batch(torch.searchsorted(before, data.pixel_ids))
+    torch.testing.assert_close(data.batch(torch.arange(len(data))).directions, rest.directions)
+
+
+def test_ray_dataset_makes_each_pixels_ray_as_the_frame_does():
+    """Rays made when drawn are those of ``frame_rays`` for the same pixels, across frames of
+    different sizes, intrinsics and bounds, masked pixels skipped."""
+    rng = np.random.default_rng(7)
+    frames = [look_at_frame((x, 0.3 * i, -4.0), name=f"v{i}", width=w, height=h, cx=w / 2.3,
+                            cy=h / 1.7, near=0.2 + 0.1 * i, far=5.0 + i)
+              for i, (x, w, h) in enumerate(((-1.0, 16, 12), (0.5, 9, 13), (1.0, 20, 5)))]
+    images = [rng.random((f.height, f.width, 3)).astype(np.float32) for f in frames]
+    masks = [rng.random((f.height, f.width)) > 0.3 for f in frames]
+    data = RayDataset(frames, images, masks)
+    everything = data.batch(torch.arange(len(data)))
+    expected = [frame_rays(f) for f in frames]
+    origins = torch.cat([o[torch.from_numpy(m.reshape(-1))] for (o, _), m in zip(expected, masks)])
+    directions = torch.cat([d[torch.from_numpy(m.reshape(-1))]
+                            for (_, d), m in zip(expected, masks)])
+    torch.testing.assert_close(everything.origins, origins, rtol=0, atol=1e-7)
+    torch.testing.assert_close(everything.directions, directions, rtol=0, atol=1e-7)
+    counts = [int(m.sum()) for m in masks]
+    torch.testing.assert_close(everything.near, torch.cat(
+        [torch.full((n,), float(f.near)) for f, n in zip(frames, counts)]))
+    torch.testing.assert_close(everything.far, torch.cat(
+        [torch.full((n,), float(f.far)) for f, n in zip(frames, counts)]))
+    torch.testing.assert_close(everything.rgb, torch.cat(
+        [torch.from_numpy(i[m]) for i, m in zip(images, masks)]))
+    # a drawn batch is the same rays as the whole set at those indices
+    index = torch.tensor([len(data) - 1, 0, counts[0], counts[0] - 1])
+    part = data.batch(index)
+    torch.testing.assert_close(part.directions, everything.directions[index])
+    torch.testing.assert_close(part.far, everything.far[index])
 
 
 def test_rays_through_points_are_the_pixels_they_fall_in_where_the_dataset_has_them():
@@ -190,6 +227,11 @@ def test_deblurred_colours_stay_with_their_rays_through_every_selection():
     (through, _), (through_sharp, _) = data.rays_through(points), data.rays_through(points, True)
     assert len(through) > 0
     torch.testing.assert_close(through_sharp.rgb, through.rgb * 10.0 + 1.0)
+    # made one at a time by an iterator, they are the same colours
+    lazily = RayDataset(frames, images, masks, deblurred=iter(sharp))
+    lazily.hold_out(50, seed=4)
+    torch.testing.assert_close(lazily.fixed_subset(200, seed=5, deblurred=True).rgb,
+                               deblurred.rgb)
     # without deblurred images the option gives the training colour
     bare = RayDataset(frames, images, masks)
     torch.testing.assert_close(bare.fixed_subset(50, 6, deblurred=True).rgb,

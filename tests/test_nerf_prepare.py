@@ -75,7 +75,7 @@ def test_open_water_pixels_reach_the_rays_and_the_scene():
     config = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0})
     run = prepare_run(config, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
                       masks)
-    flags = run.data.rays.open_water
+    flags = run.data.open_water
     assert flags is not None and len(flags) == len(run.data)
     # the blocks at the water's lower edge border on reef: between a sixth and a third
     assert 1 / 6 - 1e-6 < float(flags.float().mean()) < 1 / 3 + 1e-6
@@ -87,10 +87,10 @@ def test_open_water_pixels_reach_the_rays_and_the_scene():
     off = settings.from_mapping(TrainConfig, {"batch_rays": 256, "max_minutes": 0,
                                               "loss": {"open_water_weight": 0.0}})
     assert prepare_run(off, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
-                       masks).data.rays.open_water is not None
+                       masks).data.open_water is not None
     reef = [_dive_image(rng, 0)[:48, :64] for _ in frames]            # no open water in view
     assert prepare_run(off, CameraSet(frames=frames, near=0.1, far=4.0), frames, reef,
-                       masks).data.rays.open_water is None
+                       masks).data.open_water is None
 
 
 def test_open_water_brighter_upwards_has_a_direction_spread_and_uniform_water_none():
@@ -109,6 +109,33 @@ def test_open_water_brighter_upwards_has_a_direction_spread_and_uniform_water_no
     assert flat < 0.02
     assert open_water_direction_spread(frames, graded, masks) > 5 * flat
     assert open_water_direction_spread(frames, uniform, [np.zeros((48, 64), bool)] * 2) == 0.0
+
+
+def test_direction_spread_drawn_frame_by_frame_is_the_fit_on_the_pooled_draw():
+    """Gathering the drawn open-water pixels frame by frame gives the fit of drawing from all
+    of them pooled (the straightforward way, which holds every open-water pixel at once)."""
+    from seathru.nerf.prepare import open_water_direction_spread
+    from seathru.nerf.rays import frame_rays
+
+    frames = _frames(3)
+    rng = np.random.default_rng(11)
+    images = [rng.random((48, 64, 3)) for _ in frames]
+    masks = [rng.random((48, 64)) > 0.4, np.zeros((48, 64), bool), rng.random((48, 64)) > 0.7]
+
+    def pooled(max_pixels, seed=0):
+        dirs = np.concatenate([frame_rays(f)[1].numpy()[m.reshape(-1)]
+                               for f, m in zip(frames, masks)])
+        rgb = np.concatenate([i.reshape(-1, 3)[m.reshape(-1)] for i, m in zip(images, masks)])
+        if len(dirs) > max_pixels:
+            pick = np.random.default_rng(seed).choice(len(dirs), max_pixels, replace=False)
+            dirs, rgb = dirs[pick], rgb[pick]
+        design = np.concatenate([np.ones((len(dirs), 1)), dirs], axis=1)
+        predicted = design @ np.linalg.lstsq(design, rgb, rcond=None)[0]
+        return float(np.linalg.norm(predicted.std(0)) / np.linalg.norm(rgb.mean(0)))
+
+    for max_pixels in (500, 10_000):
+        assert open_water_direction_spread(frames, images, masks, max_pixels) == \
+            pytest.approx(pooled(max_pixels), rel=1e-12)
 
 
 def test_uniform_clear_water_with_a_dark_red_channel_has_no_direction_spread():
@@ -162,10 +189,10 @@ def test_the_water_fit_gets_deblurred_colours_only_where_a_blur_is_recorded_and_
     data = run(blurred)
     assert data.deblurred_rgb is not None
     truth = torch.from_numpy(np.concatenate([image.reshape(-1, 3) for image in sharp]))
-    truth = truth[data.pixel_ids].to(data.rays.rgb)
+    truth = truth[data.pixel_ids].to(data.rgb)
     # the fit's colours are nearer the unblurred images than the training colours are
     assert float((data.deblurred_rgb - truth).abs().mean()) < \
-        0.8 * float((data.rays.rgb - truth).abs().mean())
+        0.8 * float((data.rgb - truth).abs().mean())
     assert run(blurred, refit_deblur=False).deblurred_rgb is None
     assert run(blurred, mode="off").deblurred_rgb is None
     assert run(_frames(3)).deblurred_rgb is None                      # no blur recorded

@@ -178,7 +178,7 @@ def _small_trainer(scene_dir: Path, **config) -> Trainer:
     train = cameras.split("train")
     data = RayDataset(train, [read_image(cameras.image_path(f)) for f in train])
     scene = scene_from_frames(train, cameras.near, cameras.far, cameras.centre, cameras.scale,
-                        data.rays.rgb.mean(0).tolist())
+                        data.rgb.mean(0).tolist())
     overrides = {**FAST, "max_minutes": 0, "batch_rays": 256, "eval_rays": 256,
                  "snapshot_every": 5, "medium": {"mode": "global"}, **config}
     config = settings.from_mapping(TrainConfig, overrides)

@@ -87,6 +87,12 @@ class TrainingInputs:
     glare: GlareCorrection | None  # the correction applied to every image, or None
     frame_gains: dict[str, list[float]] | None = None   # the training frames' colour gains
 
+    def release_images(self) -> None:
+        """Let the photographs go once training has taken what it needs from them (its rays'
+        colours, the held-out probe, the snapshots' small copies): kept, they would double the
+        memory that training holds."""
+        self.train_images, self.test_images = [], []
+
     def corrections(self) -> dict:
         """``selection.json``'s record of what the photographs were trained without."""
         cast = (self.track_change or {}).get("frame_colour")

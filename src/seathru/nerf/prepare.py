@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,8 +81,10 @@ def prepare_run(config: TrainConfig, cameras, train_frames, images, masks, test_
     if len(test_frames):
         test = RayDataset(test_frames, list(test_images), list(test_masks)).fixed_subset(
             config.eval_rays, config.seed + 3)
-    rgb = data.rays.rgb
-    sample = rgb[torch.randperm(len(rgb))[:200000].to(rgb.device)].float()
+    rgb = data.rgb
+    draws = torch.randint(0, len(rgb), (min(len(rgb), 200_000),),
+                          generator=torch.Generator().manual_seed(config.seed))
+    sample = rgb[draws.to(rgb.device)].float()
     high = float(torch.quantile(sample, 0.999))
     # Bright pixels need headroom above the sigmoid's default range of object colours.
     colour_max = max(config.field.colour_max, round(2.0 * high, 3))
@@ -158,20 +161,24 @@ def veiling_light_estimate(images, masks=None, block: int = 4, share: float = 0.
     return [float(v) for v in median]
 
 
-def deblurred_images(config: TrainConfig, frames, images) -> list[np.ndarray] | None:
+def deblurred_images(config: TrainConfig, frames, images) -> Iterator[np.ndarray] | None:
     """The training images with the blur of the pipeline's own processing (each frame's
-    ``blur_px``) deconvolved, for the water fit (``medium.refit_deblur``); None when off, when
-    the medium is off, or when no frame records a blur."""
+    ``blur_px``) deconvolved, for the water fit (``medium.refit_deblur``), made one at a time
+    as they are taken (:class:`seathru.nerf.rays.RayDataset` keeps only their valid pixels);
+    None when off, when the medium is off, or when no frame records a blur."""
     if not config.medium.refit_deblur or config.medium.mode == "off" or \
             not any(max(f.blur_px or [0.0]) > 0 for f in frames):
         return None
-    started = time.perf_counter()
-    sharp = [deblurred(image, frame.blur_px or [0.0, 0.0, 0.0])
-             for frame, image in zip(frames, images)]
-    log.info("water fit: the demosaic's and undistortion's blur taken out of %d images "
-             "(sigma %s px) in %.1f s", len(frames), frames[0].blur_px,
-             time.perf_counter() - started)
-    return sharp
+
+    def one_by_one() -> Iterator[np.ndarray]:
+        started = time.perf_counter()
+        for frame, image in zip(frames, images):
+            yield deblurred(image, frame.blur_px or [0.0, 0.0, 0.0])
+        log.info("water fit: the demosaic's and undistortion's blur taken out of %d images "
+                 "(sigma %s px) in %.1f s", len(frames), frames[0].blur_px,
+                 time.perf_counter() - started)
+
+    return one_by_one()
 
 
 def open_water_in_view(config: TrainConfig, images, masks=None
@@ -227,20 +234,21 @@ def open_water_direction_spread(frames, images, water_masks, max_pixels: int = 2
     Returns:
         the relative spread (0 when there is no open water).
     """
-    directions, colours = [], []
-    for frame, image, mask in zip(frames, images, water_masks):
-        if mask is None or not mask.any():
-            continue
-        _, dirs = frame_rays(frame)
-        flat = np.asarray(mask, bool).reshape(-1)
-        directions.append(dirs.numpy().reshape(-1, 3)[flat])
-        colours.append(np.asarray(image, np.float64)[..., :3].reshape(-1, 3)[flat])
-    if not directions:
+    flats = [None if mask is None else np.flatnonzero(mask) for mask in water_masks]
+    counts = np.array([0 if flat is None else len(flat) for flat in flats])
+    if counts.sum() == 0:
         return 0.0
-    dirs, rgb = np.concatenate(directions), np.concatenate(colours)
-    if len(dirs) > max_pixels:
-        pick = np.random.default_rng(seed).choice(len(dirs), max_pixels, replace=False)
-        dirs, rgb = dirs[pick], rgb[pick]
+    # drawn over all frames' open water, then gathered frame by frame (not all of it at once)
+    pick = np.random.default_rng(seed).choice(counts.sum(), max_pixels, replace=False) \
+        if counts.sum() > max_pixels else np.arange(counts.sum())
+    dirs, rgb = np.empty((len(pick), 3)), np.empty((len(pick), 3))
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    for index, (frame, image, flat) in enumerate(zip(frames, images, flats)):
+        rows = np.flatnonzero((pick >= starts[index]) & (pick < starts[index + 1]))
+        if len(rows):
+            chosen = flat[pick[rows] - starts[index]]
+            dirs[rows] = frame_rays(frame)[1].numpy().reshape(-1, 3)[chosen]
+            rgb[rows] = np.asarray(image, np.float64)[..., :3].reshape(-1, 3)[chosen]
     design = np.concatenate([np.ones((len(dirs), 1)), dirs], axis=1)
     coefficients, *_ = np.linalg.lstsq(design, rgb, rcond=None)
     predicted = design @ coefficients

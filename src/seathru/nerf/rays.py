@@ -12,6 +12,7 @@ resolution coordinates ((j + 0.5) s, (i + 0.5) s).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -208,87 +209,119 @@ def depth_rays(frames, frame_index: np.ndarray, points: np.ndarray, colours: np.
 
 
 class RayDataset:
-    """All valid pixels of a set of frames as one tensor of rays (fits in memory at these sizes).
+    """All valid pixels of a set of frames: each pixel kept as its index and its colour, its
+    ray made from the frames' cameras when a batch is drawn (:meth:`sample`, :meth:`batch`).
+
+    A pixel costs 21 bytes (index 8, colour 12, open-water flag 1; 12 more with a deblurred
+    colour) where a stored ray would cost 65: the rays are what lets a dive's photographs at
+    full working size fit in a workstation's memory.
 
     ``images``: one (H, W, 3) float array per frame; ``masks``: (H, W) bool or None per frame.
     Pixels outside the mask or with a non-finite value are left out. ``open_water``: (H, W)
     bool per frame (``seathru.radiometry.open_water``), kept per ray, or None.
     ``deblurred``: one (H, W, 3) array per frame, the images with their processing blur taken
     out (``seathru.radiometry.deblur``), kept per ray on the CPU for the water fit
-    (:meth:`fixed_subset` and :meth:`rays_through` with ``deblurred=True``), or None.
+    (:meth:`fixed_subset` and :meth:`rays_through` with ``deblurred=True``), or None; an
+    iterator may make them one at a time, each taken before the next is made.
+
+    Example::
+
+        data = RayDataset(frames, images, masks)
+        batch = data.sample(1024, torch.Generator().manual_seed(0))   # a RayBatch
     """
 
     def __init__(self, frames, images, masks=None, device="cpu", open_water=None,
                  deblurred=None):
-        origins, dirs, near, far, rgb, water, pixel_ids = [], [], [], [], [], [], []
-        sharp = []
         self.frames = list(frames)
         self._pixel_offsets = np.cumsum([0] + [f.width * f.height for f in self.frames])
         masks = masks if masks is not None else [None] * len(frames)
         water_masks = open_water if open_water is not None else [None] * len(frames)
-        self.dropped_nonfinite = 0
         self.depth_rays: DepthRays | None = None   # set by seathru.nerf.prepare
-        for index, (frame, image, mask, water_mask) in enumerate(zip(frames, images, masks,
-                                                                     water_masks)):
-            image = np.asarray(image, dtype=np.float32)
-            if image.shape[:2] != (frame.height, frame.width):
-                raise ValueError(f"frame {frame.name}: image is {image.shape[1]}x{image.shape[0]}"
-                                 f", cameras say {frame.width}x{frame.height}")
-            o, d = frame_rays(frame)
-            keep = np.isfinite(image).all(axis=-1)
-            self.dropped_nonfinite += int((~keep).sum())
-            if mask is not None:
-                keep &= np.asarray(mask, dtype=bool)
-            keep_t = torch.from_numpy(keep.reshape(-1))
-            origins.append(o[keep_t])
-            dirs.append(d[keep_t])
-            n = int(keep_t.sum())
-            near.append(torch.full((n,), float(frame.near)))
-            far.append(torch.full((n,), float(frame.far)))
-            rgb.append(torch.from_numpy(image.reshape(-1, 3))[keep_t])
-            if deblurred is not None:
-                sharp.append(torch.from_numpy(np.asarray(deblurred[index], np.float32)
-                                              .reshape(-1, 3))[keep_t])
-            pixel_ids.append(torch.arange(keep.size)[keep_t] + int(self._pixel_offsets[index]))
-            if open_water is not None:
-                flags = np.zeros(keep.shape, bool) if water_mask is None else water_mask
-                water.append(torch.from_numpy(np.asarray(flags, bool).reshape(-1))[keep_t])
-        self.rays = RayBatch(torch.cat(origins), torch.cat(dirs), torch.cat(near),
-                             torch.cat(far), torch.cat(rgb),
-                             torch.cat(water) if open_water is not None else None).to(device)
+        # counted first, then filled frame by frame: no second copy of the set while gathered
+        total = self.dropped_nonfinite = 0
+        for frame, image, mask in zip(self.frames, images, masks):
+            keep, nonfinite = self._valid_pixels(frame, image, mask)
+            total, self.dropped_nonfinite = total + int(keep.sum()), \
+                self.dropped_nonfinite + nonfinite
         # (R,) ascending: frame offset + row * width + column of each ray's pixel
-        self.pixel_ids = torch.cat(pixel_ids)
-        self.deblurred_rgb = torch.cat(sharp) if deblurred is not None else None
+        self.pixel_ids = torch.empty(total, dtype=torch.int64)
+        self.rgb = torch.empty((total, 3), dtype=torch.float32)
+        self.open_water = None if open_water is None else torch.zeros(total, dtype=torch.bool)
+        self.deblurred_rgb = None if deblurred is None else torch.empty_like(self.rgb)
+        sharp_images = iter(deblurred) if deblurred is not None else itertools.repeat(None)
+        start = 0
+        # the deblurred images first: a generator of them finishes (and logs) after the last
+        for sharp, frame, image, mask, water_mask, offset in zip(
+                sharp_images, self.frames, images, masks, water_masks, self._pixel_offsets):
+            pixels = np.flatnonzero(self._valid_pixels(frame, image, mask)[0])
+            end = start + len(pixels)
+            self.pixel_ids[start:end] = torch.from_numpy(pixels + int(offset))
+            self.rgb[start:end] = torch.from_numpy(
+                np.asarray(image, np.float32).reshape(-1, 3)[pixels])
+            if self.open_water is not None and water_mask is not None:
+                self.open_water[start:end] = torch.from_numpy(
+                    np.asarray(water_mask, bool).reshape(-1)[pixels])
+            if self.deblurred_rgb is not None:
+                self.deblurred_rgb[start:end] = torch.from_numpy(
+                    np.asarray(sharp, np.float32).reshape(-1, 3)[pixels])
+            start = end
+        self.device = torch.device(device)
+        self.rgb = self.rgb.to(self.device)
+        if self.open_water is not None:
+            self.open_water = self.open_water.to(self.device)
+        self._cameras = _CameraTable(self.frames, self._pixel_offsets, self.device)
+        self._device_ids = self.pixel_ids.to(self.device)
+
+    @staticmethod
+    def _valid_pixels(frame, image, mask) -> tuple[np.ndarray, int]:
+        """(H * W,) bool: the pixels that are finite and inside the mask; and how many are not
+        finite (inside the mask or not)."""
+        if np.shape(image)[:2] != (frame.height, frame.width):
+            raise ValueError(f"frame {frame.name}: image is {np.shape(image)[1]}x"
+                             f"{np.shape(image)[0]}, cameras say {frame.width}x{frame.height}")
+        keep = np.isfinite(image).all(axis=-1)
+        nonfinite = int(keep.size - keep.sum())
+        if mask is not None:
+            keep &= np.asarray(mask, dtype=bool)
+        return keep.reshape(-1), nonfinite
 
     def __len__(self) -> int:
-        return len(self.rays)
+        return len(self.pixel_ids)
+
+    def batch(self, index: Tensor, deblurred: bool = False) -> RayBatch:
+        """The rays at ``index`` (R,) into the dataset, with their colours; with
+        ``deblurred``, the colours from the deblurred images where the dataset has them."""
+        device_index = index.to(self.device)
+        origins, directions, near, far = self._cameras.rays(self._device_ids[device_index])
+        rgb = self.rgb[device_index]
+        if deblurred and self.deblurred_rgb is not None:
+            rgb = self.deblurred_rgb[index.cpu()].to(self.device)
+        return RayBatch(origins, directions, near, far, rgb,
+                        None if self.open_water is None else self.open_water[device_index])
 
     def sample(self, count: int, generator: torch.Generator) -> RayBatch:
         """``count`` rays drawn uniformly with replacement (indices from ``generator``, CPU)."""
-        index = torch.randint(0, len(self), (count,), generator=generator)
-        return self.rays.subset(index.to(self.rays.origins.device))
+        return self.batch(torch.randint(0, len(self), (count,), generator=generator))
 
     def hold_out(self, count: int, seed: int) -> RayBatch:
         """Remove a reproducible random subset of at most ``count`` rays and return it (rays
         the training never samples: a validation set drawn from the training views)."""
         generator = torch.Generator().manual_seed(seed)
-        order = torch.randperm(len(self), generator=generator).to(self.rays.origins.device)
-        count = min(count, len(self) // 2)
-        held = self.rays.subset(order[:count])
-        kept = order[count:].sort().values
-        self.rays = self.rays.subset(kept)
-        self.pixel_ids = self.pixel_ids[kept.cpu()]
+        order = torch.randperm(len(self), generator=generator)
+        chosen = order[:min(count, len(self) // 2)].clone()
+        del order
+        held = self.batch(chosen)
+        keep = torch.ones(len(self), dtype=torch.bool)
+        keep[chosen] = False
+        # one array at a time: the set is never held twice
+        self.pixel_ids = self.pixel_ids[keep]
+        self._device_ids = self.pixel_ids.to(self.device)
+        self.rgb = self.rgb[keep.to(self.device)]
+        if self.open_water is not None:
+            self.open_water = self.open_water[keep.to(self.device)]
         if self.deblurred_rgb is not None:
-            self.deblurred_rgb = self.deblurred_rgb[kept.cpu()]
+            self.deblurred_rgb = self.deblurred_rgb[keep]
         return held
-
-    def _subset(self, index: Tensor, deblurred: bool) -> RayBatch:
-        """The rays at ``index`` (CPU); with ``deblurred``, their colour from the deblurred
-        images where the dataset has them."""
-        batch = self.rays.subset(index.to(self.rays.origins.device))
-        if deblurred and self.deblurred_rgb is not None:
-            batch.rgb = self.deblurred_rgb[index].to(batch.rgb.device)
-        return batch
 
     def rays_through(self, points: np.ndarray, deblurred: bool = False
                      ) -> tuple[RayBatch, np.ndarray]:
@@ -322,7 +355,7 @@ class RayDataset:
         position = torch.searchsorted(self.pixel_ids, wanted_t).clamp_max(len(self.pixel_ids) - 1)
         present = (self.pixel_ids[position] == wanted_t).numpy()
         index = position[torch.from_numpy(present)]
-        return self._subset(index, deblurred), owners_np[present]
+        return self.batch(index, deblurred), owners_np[present]
 
     def fixed_subset(self, count: int, seed: int, deblurred: bool = False) -> RayBatch:
         """A reproducible subset of at most ``count`` rays (evaluation probes); with
@@ -330,4 +363,35 @@ class RayDataset:
         generator = torch.Generator().manual_seed(seed)
         count = min(count, len(self))
         index = torch.randperm(len(self), generator=generator)[:count]
-        return self._subset(index, deblurred)
+        return self.batch(index, deblurred)
+
+
+class _CameraTable:
+    """The frames' cameras as tensors, for making the rays of pixels by their dataset index
+    (frame offset + row * width + column), as :func:`camera_rays_np` makes them: in float64,
+    returned in float32."""
+
+    def __init__(self, frames, pixel_offsets: np.ndarray, device):
+        as_tensor = lambda values: torch.tensor(np.asarray(values, np.float64),  # noqa: E731
+                                                device=device)
+        c2w = np.array([np.asarray(f.c2w_array, np.float64) for f in frames]).reshape(-1, 4, 4)
+        self.rotations, self.centres = as_tensor(c2w[:, :3, :3]), as_tensor(c2w[:, :3, 3])
+        self.intrinsics = as_tensor([[f.fx, f.fy, f.cx, f.cy] for f in frames]).reshape(-1, 4)
+        self.bounds = as_tensor([[f.near, f.far] for f in frames]).reshape(-1, 2)
+        self.widths = torch.tensor([int(f.width) for f in frames], dtype=torch.int64,
+                                   device=device)
+        self.offsets = torch.as_tensor(np.asarray(pixel_offsets, np.int64), device=device)
+
+    def rays(self, pixel_ids: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """Origins (R, 3), unit directions (R, 3), near (R,) and far (R,) of the pixels."""
+        frame = torch.searchsorted(self.offsets, pixel_ids, right=True) - 1
+        local = pixel_ids - self.offsets[frame]
+        width = self.widths[frame]
+        row = torch.div(local, width, rounding_mode="floor")
+        fx, fy, cx, cy = self.intrinsics[frame].unbind(-1)
+        cam = torch.stack([((local - row * width).double() + 0.5 - cx) / fx,
+                           (row.double() + 0.5 - cy) / fy, torch.ones_like(fx)], dim=-1)
+        directions = (self.rotations[frame] @ cam.unsqueeze(-1)).squeeze(-1)
+        directions = directions / torch.linalg.vector_norm(directions, dim=-1, keepdim=True)
+        near, far = self.bounds[frame].unbind(-1)
+        return (self.centres[frame].float(), directions.float(), near.float(), far.float())

@@ -91,8 +91,8 @@ def train(config: Settings, cameras_path: Path, out: Path, checkpoint_dir: Path,
                                if config.loss.sparse_depth_weight > 0 else None)
     except PipelineError as exc:
         raise PipelineError(f"{cameras_path}: {exc}") from None
-    model, data = prepared.model, prepared.data
-    scene = model.scene
+    inputs.release_images()   # the training set holds the pixels it needs
+    model, data, scene = prepared.model, prepared.data, prepared.model.scene
     log.info("%d training rays from %d images, %d test pixels; loaded in %.1f s; scene box %s "
              "to %s", len(data), len(train_frames), 0 if prepared.test is None else
              len(prepared.test), time.perf_counter() - started,
