@@ -24,6 +24,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import cv2
@@ -83,6 +84,39 @@ def peak_memory(source: Path, cameras: Path, out: Path, seconds: float) -> tuple
     return usage.ru_maxrss * 1024.0, float(rate[-1]) if rate else float("nan")
 
 
+def sampling_times(source: Path, cameras: Path, batch: int = 1024, repeats: int = 5,
+                   draws: int = 200) -> dict[str, float]:
+    """Seconds per ``RayDataset.sample(batch)`` of this checkout's training set and of the
+    one in ``source`` (its ``seathru/nerf/rays.py``) on the same images, timed in turns."""
+    import importlib.util
+
+    import torch
+
+    from seathru.io.cameras import read_cameras
+    from seathru.io.images import read_image
+    from seathru.nerf import rays
+
+    spec = importlib.util.spec_from_file_location("baseline_rays",
+                                                  source / "seathru" / "nerf" / "rays.py")
+    baseline = importlib.util.module_from_spec(spec)
+    sys.modules["baseline_rays"] = baseline
+    spec.loader.exec_module(baseline)
+    camera_set = read_cameras(cameras)
+    frames = camera_set.split("train")
+    images = [read_image(camera_set.image_path(f)) for f in frames]
+    sets = {"baseline": baseline.RayDataset(frames, images),
+            "this checkout": rays.RayDataset(frames, images)}
+    totals = dict.fromkeys(sets, 0.0)
+    for repeat in range(repeats):
+        for name, data in sets.items():
+            generator = torch.Generator().manual_seed(repeat)
+            start = time.perf_counter()
+            for _ in range(draws):
+                data.sample(batch, generator)
+            totals[name] += time.perf_counter() - start
+    return {name: total / (repeats * draws) for name, total in totals.items()}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cameras", type=Path,
@@ -131,6 +165,14 @@ def main() -> None:
             points = [(p, m) for _, p, a, m, _ in rows if a == arm]
             slope, base = np.polyfit([p for p, _ in points], [m for _, m in points], 1)
             lines.append(f"| {arm} | {slope:.0f} | {base / 1e9:.2f} |")
+        largest = work / f"x{max(scales)}" / "cameras.json"
+        times = sampling_times(baseline / "src", largest)
+        lines += ["", f"Drawing a batch of 1,024 training rays (`RayDataset.sample`, in turns, "
+                  f"1,000 draws each, x{max(scales)}): baseline {times['baseline'] * 1e3:.3f} "
+                  f"ms, this checkout {times['this checkout'] * 1e3:.3f} ms (ratio "
+                  f"{times['this checkout'] / times['baseline']:.2f}), against "
+                  f"{1024 / rows[-1][4] * 1e3:.0f} ms a training step at that size (its rays/s "
+                  "above): the rays/s column's differences are not the drawing's."]
         args.out.write_text("\n".join(lines) + "\n")
         print("\n".join(lines))
     finally:

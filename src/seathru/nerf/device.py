@@ -42,12 +42,14 @@ def select_device(name: str = "auto", threads: int | None = None) -> torch.devic
 
 
 # Peak resident memory of the train step per pixel of the images it reads, above its fixed
-# part: the images, their deblurred copies and the rays, with the copies made while they are
-# gathered. Peaks of whole workflow runs (max_rss in logs/<dataset>/train.benchmark.tsv;
-# training and held-out pixels): the demo, 1.8 million, 1.19 GB; d3_reef, 7.7 million, 1.45 GB;
-# d3_reef's frames at 1600x1200, 37.8 million, 4.96 GB (benchmarks/results/new_user_s48.md).
-# The estimate lies 4-38% above each.
-BYTES_PER_TRAINING_PIXEL = 130
+# part: the photographs (12 bytes a pixel) while the training set gathers their pixels (each
+# pixel's index and colour, its deblurred colour and open-water flag: 33 bytes; rays are made
+# when drawn, seathru.nerf.rays.RayDataset). benchmarks/results/train_memory.md: 44 bytes a
+# pixel over the demo's frames as they are and upscaled 2x and 4x (1.8 to 29.3 million
+# pixels; 30-s runs); the whole demo workflow's train step peaks at 1.04 GB (max_rss in
+# logs/demo/train.benchmark.tsv). The estimate lies 6% above the workflow's peak and 35-49%
+# above the short runs' (no refits or trials yet: a smaller fixed part).
+BYTES_PER_TRAINING_PIXEL = 55
 TRAINING_MEMORY_BASE = 1_000_000_000   # torch, the model, the water fits
 
 
