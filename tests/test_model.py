@@ -170,6 +170,18 @@ def test_ray_dataset_makes_each_pixels_ray_as_the_frame_does():
     torch.testing.assert_close(part.far, everything.far[index])
 
 
+@pytest.mark.parametrize("count", [7, 1000, 300_001])
+def test_int32_permutations_are_the_int64_ones_and_leave_the_same_random_stream(count):
+    """The training set draws its permutations in int32 to halve their memory; the draws, and
+    what a generator gives after them, must be those of the default int64."""
+    generators = [torch.Generator().manual_seed(5) for _ in range(2)]
+    wide = torch.randperm(count, generator=generators[0])
+    narrow = torch.randperm(count, generator=generators[1], dtype=torch.int32)
+    assert torch.equal(wide, narrow.long())
+    assert torch.equal(torch.rand(4, generator=generators[0]),
+                       torch.rand(4, generator=generators[1]))
+
+
 def test_rays_through_points_are_the_pixels_they_fall_in_where_the_dataset_has_them():
     frames = [look_at_frame((x, 0.3, -4.0), name=f"v{i}", width=16, height=12, cx=8.0, cy=6.0)
               for i, x in enumerate((-1.0, 0.0, 1.0))]

@@ -379,8 +379,9 @@ def test_view_dependent_colour_is_kept_only_where_the_colour_changes_with_direct
     trainer = _small_trainer(default_scene, steps=300,
                              field={**FAST["field"], "view_trial_share": 0.35,
                                     "view_margin_db": 0.25})
-    for rays in (trainer.data.rays, trainer.probe):
-        rays.rgb = rays.rgb * (1 + tint * rays.directions[:, :1])
+    directions = trainer.data.batch(torch.arange(len(trainer.data))).directions
+    trainer.data.rgb = trainer.data.rgb * (1 + tint * directions[:, :1])
+    trainer.probe.rgb = trainer.probe.rgb * (1 + tint * trainer.probe.directions[:, :1])
     trainer.run()
     selection = trainer.view_selection
     assert selection["chosen"] == chosen, selection["reason"]

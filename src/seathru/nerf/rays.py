@@ -213,8 +213,13 @@ class RayDataset:
     ray made from the frames' cameras when a batch is drawn (:meth:`sample`, :meth:`batch`).
 
     A pixel costs 21 bytes (index 8, colour 12, open-water flag 1; 12 more with a deblurred
-    colour) where a stored ray would cost 65: the rays are what lets a dive's photographs at
-    full working size fit in a workstation's memory.
+    colour); its ray is made when drawn because a stored ray would cost 65, and memory is
+    what limits how many photographs at full working size one training takes
+    (``benchmarks/results/train_memory.md``).
+
+    Attributes: ``pixel_ids`` (R,) int64 on the CPU, ascending (frame offset + row * width +
+    column); ``rgb`` (R, 3) the linear colours and ``open_water`` (R,) bool or None, on
+    ``device``; ``deblurred_rgb`` (R, 3) on the CPU or None.
 
     ``images``: one (H, W, 3) float array per frame; ``masks``: (H, W) bool or None per frame.
     Pixels outside the mask or with a non-finite value are left out. ``open_water``: (H, W)
@@ -307,8 +312,9 @@ class RayDataset:
         """Remove a reproducible random subset of at most ``count`` rays and return it (rays
         the training never samples: a validation set drawn from the training views)."""
         generator = torch.Generator().manual_seed(seed)
-        order = torch.randperm(len(self), generator=generator)
-        chosen = order[:min(count, len(self) // 2)].clone()
+        # int32: the same permutation as int64 (tested), in half the memory
+        order = torch.randperm(len(self), generator=generator, dtype=torch.int32)
+        chosen = order[:min(count, len(self) // 2)].long()
         del order
         held = self.batch(chosen)
         keep = torch.ones(len(self), dtype=torch.bool)
@@ -362,7 +368,7 @@ class RayDataset:
         ``deblurred``, their colour from the deblurred images where kept (see the class)."""
         generator = torch.Generator().manual_seed(seed)
         count = min(count, len(self))
-        index = torch.randperm(len(self), generator=generator)[:count]
+        index = torch.randperm(len(self), generator=generator, dtype=torch.int32)[:count].long()
         return self.batch(index, deblurred)
 
 
