@@ -44,7 +44,7 @@ def select_device(name: str = "auto", threads: int | None = None) -> torch.devic
 # Peak resident memory of the train step per pixel of the images it reads, above its fixed
 # part: the photographs (12 bytes a pixel) while the training set gathers their pixels (each
 # pixel's index and colour, its deblurred colour and open-water flag: 33 bytes; rays are made
-# when drawn, seathru.nerf.rays.RayDataset). benchmarks/results/train_memory.md: 44 bytes a
+# when drawn, seathru.nerf.rays.RayDataset). benchmarks/results/train_memory.md: 46 bytes a
 # pixel over the demo's frames as they are and upscaled 2x and 4x (1.8 to 29.3 million
 # pixels; 30-s runs); the whole demo workflow's train step peaks at 1.04 GB (max_rss in
 # logs/demo/train.benchmark.tsv). The estimate lies 6% above the workflow's peak and 35-49%
