@@ -112,12 +112,41 @@ def test_unknown_option_of_each_step_is_refused_naming_row_and_field(tmp_path, s
         ("train={medium: {mode: soup}}", r"train\.medium\.mode: 'soup' is not one of"),
         ("train={no_such: 1}", r"train\.no_such is not a setting of 'seathru train'"),
         ("trian={seed: 1}", r"trian is not a configuration key"),
+        ("resources={train: {mem_mb: lots}}",
+         r"resources\.train\.mem_mb: 'lots' is not a memory in MB \(at least 100\) or auto"),
+        ("resources={render: {mem_mb: auto}}",
+         r"resources\.render\.mem_mb: 'auto' is known for train only"),
     ],
 )
 def test_wrong_config_value_is_refused(override, expected):
     result = snakemake("-n", "--cores", "1", "--config", override)
     assert result.returncode != 0
     assert re.search(expected, result.stdout + result.stderr), (result.stdout + result.stderr)[-2000:]
+
+
+def test_train_jobs_ask_for_the_memory_their_photographs_need(tmp_path):
+    """``resources.train.mem_mb: auto``: a train job asks for what the train step's own check
+    will want of its allocation (the interpreter's share aside), and not a blanket amount."""
+    import json
+    from types import SimpleNamespace
+
+    from seathru.nerf import device
+
+    helpers = workflow_helpers()
+    memory_mb = helpers["training_memory_mb"]
+    assert helpers["TRAIN_BYTES_PER_PIXEL"] == device.BYTES_PER_TRAINING_PIXEL
+    assert helpers["TRAIN_MEMORY_BASE_MB"] * 1_000_000 == device.TRAINING_MEMORY_BASE
+    cameras = tmp_path / "cameras.json"
+    for count, width, height in ((24, 319, 239), (120, 1600, 1200)):
+        cameras.write_text(json.dumps({"frames": [{"width": width, "height": height}] * count}))
+        asked = memory_mb(cameras) * 1e6
+        frames = [SimpleNamespace(width=width, height=height)] * count
+        need = device.check_training_memory(frames, "cameras.json", available=asked - 4e8)
+        assert asked <= 1.25 * need + 6e8
+        assert memory_mb(cameras, attempt=2) == 2 * memory_mb(cameras)
+    assert memory_mb(tmp_path / "not_yet.json", fallback=16000) == 16000
+    assert yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())[
+        "resources"]["train"]["mem_mb"] == "auto"
 
 
 def test_nested_config_values_given_as_text_are_read_as_values():

@@ -481,7 +481,9 @@ RESOURCE_SCHEMA = {
         "type": "object",
         "properties": {
             "threads": {"type": "integer", "minimum": 1},
-            "mem_mb": {"type": "integer", "minimum": 100},
+            # auto (train only): the memory the dataset's photographs need (common.smk)
+            "mem_mb": {"anyOf": [{"type": "integer", "minimum": 100}, {"const": "auto"}],
+                       "description": "a memory in MB (at least 100) or auto (train only)"},
             "runtime": {"type": "integer", "minimum": 1},
             "gpu": {"type": "integer", "minimum": 0},
         },

@@ -1,5 +1,7 @@
 # Helpers of the workflow. Everything above the "workflow glue" line is plain Python that needs
 # none of Snakemake's globals: tests load it alone (tests/test_workflow.py, test_settings.py).
+import json
+import math
 import os
 import re
 import shlex
@@ -216,6 +218,8 @@ def schema_error_message(error, prefix=()):
                 f"{_known_names(schema)})")
     if error.validator == "type" and isinstance(instance, dict) and path:
         return f"{field} is a setting, not a section: give it a value ({field}=...)"
+    if error.validator == "anyOf" and "description" in schema:
+        return f"{field}: {instance!r} is not {schema['description']}"
     message = f"{field}: {error.message}" if field else error.message
     if error.validator == "type" and "array" in _types(schema) and isinstance(instance, str):
         items = [item for item in re.split(r"[\s,]+", instance.strip()) if item]
@@ -242,9 +246,13 @@ def read_text_values(data, schema):
                 for key, value in data.items()}
     if isinstance(data, list) and isinstance(schema.get("items"), dict):
         return [read_text_values(item, schema["items"]) for item in data]
-    wants_text = "string" in _types(schema) or any(isinstance(c, str)
-                                                   for c in schema.get("enum", []))
-    if isinstance(data, str) and not wants_text and (_types(schema) or "enum" in schema):
+    # a value that may be one of several kinds (``anyOf``: a number or a word) is read as any
+    alternatives = schema.get("anyOf", [schema])
+    types = set().union(*(_types(alternative) for alternative in alternatives))
+    words = [word for alternative in alternatives for word in alternative.get("enum", [])] + \
+        [alternative["const"] for alternative in alternatives if "const" in alternative]
+    wants_text = "string" in types or (not types and any(isinstance(w, str) for w in words))
+    if isinstance(data, str) and not wants_text and (types or words):
         try:
             return yaml.load(data, Loader=OptionValueLoader)
         except yaml.YAMLError:
@@ -358,6 +366,26 @@ def ingest_for_protocol(ingest, evaluate):
     return ingest
 
 
+# As seathru.nerf.device's BYTES_PER_TRAINING_PIXEL and TRAINING_MEMORY_BASE (the workflow does
+# not import the package; tests/test_workflow.py checks they agree).
+TRAIN_BYTES_PER_PIXEL = 55
+TRAIN_MEMORY_BASE_MB = 1000
+
+
+def training_memory_mb(cameras_json, attempt=1, fallback=16000):
+    """``resources.train.mem_mb: auto``: the memory a train job asks for, from the pixels of
+    the frames in its camera file (poses/cameras.json) as the train step estimates its peak,
+    a fifth and 500 MB more (the interpreter, and the step's own check against what its job
+    has left), doubled on each retry; ``fallback`` where the file cannot be read yet."""
+    try:
+        frames = json.loads(Path(cameras_json).read_text())["frames"]
+        pixels = sum(int(frame["width"]) * int(frame["height"]) for frame in frames)
+    except (OSError, ValueError, KeyError, TypeError):
+        return fallback
+    need_mb = TRAIN_MEMORY_BASE_MB + TRAIN_BYTES_PER_PIXEL * pixels / 1e6
+    return int(math.ceil((1.2 * need_mb + 500) / 100) * 100) * 2 ** (max(1, attempt) - 1)
+
+
 def sweep_flags(sweep):
     """The report's ``--variants NAME=OPTIONS ...`` (shell-quoted), or "" without a sweep."""
     pairs = [f"{name}={text or ''}" for name, text in (sweep or {}).items()]
@@ -457,7 +485,15 @@ def resource(rule_name, key):
 
 
 def rule_resources(rule_name):
-    return dict(mem_mb=resource(rule_name, "mem_mb"), runtime=resource(rule_name, "runtime"),
+    mem_mb = resource(rule_name, "mem_mb")
+    if mem_mb == "auto":
+        if rule_name != "train":
+            raise SheetError(f"config/config.yaml: resources.{rule_name}.mem_mb: 'auto' is "
+                             "known for train only; give this rule's memory in MB")
+        # evaluated when the job is ready to run, its camera file written
+        mem_mb = lambda wildcards, input, attempt: training_memory_mb(  # noqa: E731
+            Path(input[0], "cameras.json"), attempt)
+    return dict(mem_mb=mem_mb, runtime=resource(rule_name, "runtime"),
                 gpu=resource(rule_name, "gpu"))
 
 
