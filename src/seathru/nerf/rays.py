@@ -319,12 +319,13 @@ class RayDataset:
         held = self.batch(chosen)
         keep = torch.ones(len(self), dtype=torch.bool)
         keep[chosen] = False
+        kept_here = keep.to(self.device)
         # one array at a time: the set is never held twice
         self.pixel_ids = self.pixel_ids[keep]
         self._device_ids = self.pixel_ids.to(self.device)
-        self.rgb = self.rgb[keep.to(self.device)]
+        self.rgb = self.rgb[kept_here]
         if self.open_water is not None:
-            self.open_water = self.open_water[keep.to(self.device)]
+            self.open_water = self.open_water[kept_here]
         if self.deblurred_rgb is not None:
             self.deblurred_rgb = self.deblurred_rgb[keep]
         return held
