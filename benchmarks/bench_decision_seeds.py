@@ -3,7 +3,8 @@ comes, with the evidence and the race behind it. Usage::
 
     python benchmarks/bench_decision_seeds.py --water clear --size 64x48 --steps 500 \\
         --seeds 0,1,2,3,4,5 [--path orbit] [--sparse] [--minutes 3] [--preset toy] \\
-        [--supersample 3] [--out benchmarks/results/decision_seeds.md]
+        [--supersample 3] [--train-args '--medium.auto-race-without-evidence'] \\
+        [--out benchmarks/results/decision_seeds.md]
 
 ``--preset toy`` trains with ``tests/test_train.py``'s small grids and batches (its clear-water
 test is 16 views of 64x48, 500 steps, seed 0); ``--preset shipped`` with the shipped defaults,
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 import time
@@ -54,7 +56,9 @@ def scene(work: Path, args) -> Path:
 
 def decide(sim: Path, seed: int, args) -> dict:
     """One training run's ``selection.json`` (run if not there yet)."""
-    out = sim / f"train_{args.preset}_{args.steps or args.minutes}_{seed}"
+    extra = shlex.split(args.train_args)
+    tag = "".join(c for c in args.train_args if c.isalnum())[:40]
+    out = sim / f"train_{args.preset}_{args.steps or args.minutes}{tag and '_' + tag}_{seed}"
     if not (out / "selection.json").exists():
         budget = ["--steps", str(args.steps), "--max-minutes", "0"] if args.steps else \
             ["--max-minutes", str(args.minutes)]
@@ -63,7 +67,7 @@ def decide(sim: Path, seed: int, args) -> dict:
             [sys.executable, "-m", "seathru.cli", "train", "--cameras",
              str(sim / "truth" / "cameras.json"), "--out", str(out), "--checkpoint-dir",
              str(out.parent / f"{out.name}_ckpt"), "--threads", "1", "--no-progress",
-             "--seed", str(seed), *budget, *flags], capture_output=True, text=True)
+             "--seed", str(seed), *budget, *flags, *extra], capture_output=True, text=True)
         if done.returncode != 0:
             raise SystemExit(f"training seed {seed} failed:\n{done.stderr[-2000:]}")
     return json.loads((out / "selection.json").read_text())
@@ -76,8 +80,10 @@ def row(seed: int, selection: dict) -> str:
         + ("" if stats.get("validation_psnr_off_second_trial") is None else
            f" / {stats['validation_psnr_off_second_trial']:.2f}"))
     fading = stats.get("surface_attenuation_over_depth")
+    front = stats.get("backscatter_in_front_share")
     return (f"| {seed} | {selection['chosen']} | {selection['decided_at_step']} | "
-            f"{100 * stats['backscatter_share']:.0f}% | {100 * stats['object_hit_share']:.0f}% | "
+            f"{100 * stats['backscatter_share']:.0f}% | "
+            f"{'-' if front is None else f'{100 * front:.0f}%'} | {100 * stats['object_hit_share']:.0f}% | "
             f"{'-' if fading is None else f'{100 * fading:.0f}%'} | {race} | "
             f"{'; '.join(stats['evidence_of_water']) or 'none'} |")
 
@@ -95,6 +101,7 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=3.0)
     parser.add_argument("--preset", choices=("toy", "shipped"), default="toy")
     parser.add_argument("--sparse", action="store_true")
+    parser.add_argument("--train-args", default="", help="more flags for the train step")
     parser.add_argument("--work", type=Path, default=Path("/tmp/bench_decision_seeds"))
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
@@ -110,9 +117,9 @@ def main() -> None:
              f"`python benchmarks/bench_decision_seeds.py {' '.join(sys.argv[1:])}`; "
              f"{cpu_name()}; {time.perf_counter() - started:.0f} s. No water at "
              f"{answers.count('off')} of {len(answers)} seeds.", "",
-             "| seed | chosen | at step | backscatter share | rays meeting a surface | "
+             "| seed | chosen | at step | backscatter share | in front of surfaces | rays meeting a surface | "
              "surface fading | race: water / no water / its second trial (dB) | evidence |",
-             "|---:|---|---:|---:|---:|---:|---|---|",
+             "|---:|---|---:|---:|---:|---:|---:|---|---|",
              *(row(seed, s) for seed, s in zip(seeds, selections)), ""]
     with open(args.out, "a") as out:
         out.write("\n".join(lines) + "\n")

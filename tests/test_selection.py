@@ -3,6 +3,8 @@ water and the margins of the medium decision, on a 3-view dive of 48x64 pixels."
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -14,7 +16,8 @@ from seathru.nerf.training import Trainer
 torch.set_num_threads(1)
 
 
-def _evidence_trainer(track_change: dict | None = None, medium: str | None = None) -> Trainer:
+def _evidence_trainer(track_change: dict | None = None, medium: str | None = None,
+                      race_without_evidence: bool = False) -> Trainer:
     """A 3-view dive of 48x64 pixels for the medium decision; with ``medium`` the water is set
     dim (c_med 0.001) but attenuating, so no open water or backscatter shows water."""
     from tests.test_nerf_prepare import _dive_image, _frames
@@ -25,8 +28,9 @@ def _evidence_trainer(track_change: dict | None = None, medium: str | None = Non
     frames = _frames(3)
     images = [_dive_image(rng, 0)[:48, :64] for _ in frames]
     options = {"batch_rays": 256, "max_minutes": 0, "steps": 40}
+    options["medium"] = {"auto_race_without_evidence": race_without_evidence}
     if medium is not None:
-        options["medium"] = {"mode": medium}
+        options["medium"]["mode"] = medium
     config = settings.from_mapping(TrainConfig, options)
     run = prepare_run(config, CameraSet(frames=frames, near=0.1, far=4.0), frames, images,
                       [None] * 3, track_change=track_change)
@@ -44,21 +48,52 @@ def test_colour_fading_along_tracks_is_evidence_of_water():
     assert not any("COLMAP tracks" in text for text in evidence[1])
 
 
-@pytest.mark.parametrize("gain_db, with_evidence, chosen", [
-    (1.7, False, "off"),      # what fern (in air) gained from a water model: not enough alone
-    (3.5, False, "global"),
-    (-0.3, True, "global"),   # with evidence, a tie keeps the water
-    (-0.8, True, "off")])
-def test_without_evidence_of_water_the_water_must_win_by_a_wide_margin(gain_db, with_evidence,
-                                                                        chosen, monkeypatch):
+@pytest.mark.parametrize("gain_db, with_evidence, race_without_evidence, chosen", [
+    (3.5, False, False, "off"),     # no evidence, no water: no race is run
+    (1.7, False, True, "off"),      # what fern (in air) gained from a water model: not enough
+    (3.5, False, True, "global"),
+    (-0.3, True, False, "global"),  # with evidence, a tie keeps the water
+    (-0.8, True, False, "off")])
+def test_without_evidence_of_water_there_is_no_water_or_it_must_win_by_a_wide_margin(
+        gain_db, with_evidence, race_without_evidence, chosen, monkeypatch):
     change = {"tracks": 500, "t": [-12.0, 1.0, 0.5],
               "change_over_median_range": [-0.4, 0.02, 0.01]} if with_evidence else None
-    trainer = _evidence_trainer(change, medium="global")
+    trainer = _evidence_trainer(change, medium="global",
+                                race_without_evidence=race_without_evidence)
     monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0 + (
         gain_db if trainer.model.medium.mode != "off" else 0.0))
     selection = trainer.select_medium()
+    raced = with_evidence or race_without_evidence
     assert bool(selection["statistics"]["evidence_of_water"]) == with_evidence
     assert selection["chosen"] == chosen, selection["reason"]
+    assert ("validation_psnr_water" in selection["statistics"]) == raced
+    assert trainer.step == (trainer._trial_steps(trainer.config.medium.auto_trial_share)
+                            if raced else 0)
+    if not raced:
+        assert selection["reason"].startswith("no evidence of water")
+        assert trainer.model.medium.mode == "off"
+
+
+@pytest.mark.parametrize("sigma_bs, evidence", [(0.001, False), (1.0, True)])
+def test_backscatter_is_evidence_only_in_front_of_the_surfaces(sigma_bs, evidence, monkeypatch):
+    # a half-trained scene's grey fog behind half-transparent surfaces makes up 61-70% of a
+    # toy clear-water image as backscatter, 6-15% in front of its surfaces (decision_seeds.md)
+    trainer = _evidence_trainer(medium="global")
+    trainer.model.medium.set_global([0.0] * 3, [sigma_bs] * 3, [0.5] * 3)
+    rays = len(trainer.probe)
+    depth = torch.full((rays,), 2.0)
+    monkeypatch.setattr(trainer, "render_batch", lambda batch: {
+        "rgb": torch.full((rays, 3), 0.5), "backscatter": torch.full((rays, 3), 0.4),
+        "opacity": torch.ones(rays), "depth": depth, "depth_median": depth})
+    monkeypatch.setattr(trainer, "assess_water", lambda: {
+        "surface_fit": {"sigma_attn": [0.0] * 3}, "fit_determined": {"sigma_attn": [False] * 3}})
+    monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0)
+    stats = trainer.select_medium()["statistics"]
+    assert stats["backscatter_share"] == pytest.approx(0.8)
+    assert stats["backscatter_in_front_share"] == pytest.approx(-math.expm1(-2 * sigma_bs),
+                                                                rel=1e-5)
+    assert any("in front of the surfaces" in text
+               for text in stats["evidence_of_water"]) == evidence, stats["evidence_of_water"]
 
 
 @pytest.mark.parametrize("surface_attn, evidence", [(0.0, False), (2.0, True)])
@@ -97,7 +132,7 @@ def test_without_evidence_no_water_gets_a_second_trial_to_adapt_to_the_switch(re
                                                                              monkeypatch):
     # its object colours were learnt under the water; switched off they are all off by the
     # attenuation, which one trial does not undo (a clear-water survey: 3.5 dB behind)
-    trainer = _evidence_trainer(medium="global")
+    trainer = _evidence_trainer(medium="global", race_without_evidence=True)
     start = trainer.step
     trial = trainer._trial_steps(trainer.config.medium.auto_trial_share)
 
@@ -125,7 +160,7 @@ def test_with_evidence_or_a_close_race_there_is_no_second_trial(gain_db, with_ev
                                                                 monkeypatch):
     change = {"tracks": 500, "t": [-12.0, 1.0, 0.5],
               "change_over_median_range": [-0.4, 0.02, 0.01]} if with_evidence else None
-    trainer = _evidence_trainer(change, medium="global")
+    trainer = _evidence_trainer(change, medium="global", race_without_evidence=True)
     trial = trainer._trial_steps(trainer.config.medium.auto_trial_share)
     monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0 + (
         gain_db if trainer.model.medium.mode != "off" else 0.0))

@@ -255,7 +255,10 @@ def test_each_layout_runs_to_evaluate(sources_run, dataset):
     summary = results(sources_run, dataset) / "evaluate" / "summary.json"
     assert summary.is_file(), log_tail(sources_run, dataset)
     metrics = pd.read_csv(results(sources_run, dataset) / "evaluate" / "metrics.csv")
-    floor = 8.0 if dataset == "unconfirmed_warn" else 13.0   # that one trains 9 s only
+    # 150 steps of fern (in air): where no water is chosen at step 60, the right answer, the
+    # run has 90 steps to recover from the switch (llff_n 12.35-12.60 dB; with the water's fog
+    # 13 and more); the unconfirmed one trains 9 s only
+    floor = 8.0 if dataset == "unconfirmed_warn" else 12.0
     assert len(metrics) >= 1 and metrics["psnr_linear"].mean() > floor, metrics
 
 

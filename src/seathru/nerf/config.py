@@ -226,15 +226,24 @@ class MediumConfig:
     auto_margin_db: float = setting(0.5, help="auto: with evidence of water in the images, no "
                                               "water must beat the water by this many dB on "
                                               "held-out rays to be chosen")
+    auto_race_without_evidence: bool = setting(
+        False, help="auto: race the water against no water also where nothing shows water "
+                    "(it must then win by auto_margin_no_evidence_db); off: no evidence, no "
+                    "water (the race starts from a model trained with the water and favours it: "
+                    "docs/water.md, \"No evidence, no water\")")
     auto_margin_no_evidence_db: float = setting(
-        3.0, help="auto: without evidence of water in the images, the water must beat no water "
-                  "by this many dB (a water model also fits what a half-trained scene gets "
-                  "wrong: fern, in air, gained 1.7 dB from it)")
+        3.0, help="auto: with auto_race_without_evidence, the water must beat no water by this "
+                  "many dB (a water model also fits what a half-trained scene gets wrong: fern, "
+                  "in air, gained 1.7 dB from it)")
     auto_backscatter_evidence: float = setting(
         0.3, help="auto: a fitted water whose backscatter makes up this share of the image is "
                   "evidence of water (a scattering medium; 61-67% on the simulated surveys and "
                   "the default-water orbit, 15% on the clearest oceanic orbit, whose tracks "
                   "show its water; 20% for the water model fern, in air, trained)")
+    auto_backscatter_in_front_evidence: float = setting(
+        0.2, help="auto: ... and at least this share in front of the surfaces the rays meet (a "
+                  "half-trained scene's fog behind its surfaces is no water: 6-15% in front on "
+                  "toy clear-water scenes, 28-59% in the default water)")
     auto_surface_fading: float = setting(
         0.25, help="auto: a water fit on the model's own surfaces (independent of the trained "
                    "water) whose attenuation fades the colour by this share over the median "

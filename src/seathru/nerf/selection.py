@@ -145,6 +145,19 @@ class ModelSelection:
             return c.auto_select_at
         return min(c.auto_select_at, c.auto_select_at_no_image_evidence)
 
+    def _backscatter_in_front_share(self, rendered: dict, hit: torch.Tensor) -> float:
+        """The water's backscatter between the camera and the surfaces the probe rays meet,
+        as a share of their colour (max over channels; 0 where no ray meets a surface)."""
+        if not bool(hit.any()):
+            return 0.0
+        with torch.no_grad():
+            directions = self.probe.directions[hit.to(self.probe.directions.device)]
+            _, sigma_bs, c_med = self.model.medium(directions.to(self.device))
+        depth = rendered["depth_median"][hit].to(sigma_bs.device)[:, None]
+        front = c_med * -torch.expm1(-sigma_bs * depth)
+        colour = rendered["rgb"][hit].to(front.device).mean(0).clamp_min(1e-6)
+        return float((front.mean(0) / colour).max())
+
     def select_medium(self) -> dict:
         """``medium.mode=auto``: no water (plain NeRF) or the water the run started with, the
         simplest that the training views support.
@@ -156,7 +169,7 @@ class ModelSelection:
         over the median scene depth below ``auto_attenuation``) the water is switched off at
         once. Otherwise both models train on from here for the same few steps on the same
         batches (``auto_trial_share`` of the run each) and are compared on held-out training
-        rays. The images' own evidence of water decides ties: open water in the photographs
+        rays, where the images show evidence of water: open water in the photographs
         (smooth regions reaching the top of the frame, ``seathru.radiometry.open_water``) or in
         the model (rays that meet no surface; both above ``auto_open_water_share``, and only
         where the veiling light is visible: ``auto_veiling_brightness``), a density wall at the
@@ -164,11 +177,15 @@ class ModelSelection:
         tracks (``seathru.io.tracks.input_colour_change``), attenuation the surfaces seen
         over a range of distances determine (``assess_water``; made only when nothing else
         shows water, as it costs seconds of the budget), or a fitted water whose
-        backscatter is a large share of the image (``auto_backscatter_evidence``). With such
-        evidence the water stays unless no water is better by ``auto_margin_db``; without it,
-        the water must be better by ``auto_margin_no_evidence_db``, also after no water has
-        trained a second trial (its object colours were learnt under the water, and the switch
-        leaves each off by the attenuation it was trained with). The paper's fully
+        backscatter is a large share of the image (``auto_backscatter_evidence``), and of it in
+        front of the surfaces the rays meet (``auto_backscatter_in_front_evidence``: a
+        half-trained scene's fog behind its surfaces is no water). With such evidence the water
+        stays unless no water is better by ``auto_margin_db``. Without it there is no water and
+        no race: the race starts from the model trained with the water, whose object colours
+        were learnt under it and are each off by the attenuation once it is switched off. With
+        ``auto_race_without_evidence`` the race is run anyway and the water must be better by
+        ``auto_margin_no_evidence_db``, also after no water has trained a second trial. The
+        paper's fully
         view-dependent water is never picked automatically: it can also absorb errors of a
         half-trained scene; ask for it with ``medium.mode=view``.
         """
@@ -182,6 +199,7 @@ class ModelSelection:
             depth = float(torch.quantile(rendered["depth"][hit].float(), 0.5))
         else:
             depth = float(self.model.scene.get("typical_range", 1.0))
+        front_share = self._backscatter_in_front_share(rendered, hit)
         attenuation = 1.0 - math.exp(-max(water["sigma_attn"]) * depth)
         # open water: rays that meet no surface AND whose pixel is the veiling light itself; an
         # empty ray whose pixel differs (textured seabed explained by water) is no evidence
@@ -208,9 +226,10 @@ class ModelSelection:
              "(open water)"),
             (wall > c.medium.auto_open_water_share,
              f"{100 * wall:.1f}% of the rays end in a density wall at the far bound"),
-            (backscatter_share >= c.medium.auto_backscatter_evidence,
+            (backscatter_share >= c.medium.auto_backscatter_evidence
+             and front_share >= c.medium.auto_backscatter_in_front_evidence,
              f"the fitted water's backscatter makes up {100 * backscatter_share:.0f}% of the "
-             "image"),
+             f"image, {100 * front_share:.0f}% in front of the surfaces"),
         ) if present)]
         # The surface fit costs seconds of the budget (12 s of a 90-s demo run) and can only
         # add evidence: it is made when nothing else shows water, where it decides.
@@ -222,7 +241,8 @@ class ModelSelection:
                 evidence.append(f"surfaces seen over a range of distances fade by "
                                 f"{100 * surface_attenuation:.0f}% over the median depth"
                                 + (" (attenuation determined)" if determined else ""))
-        stats = {"backscatter_share": backscatter_share, "attenuation_over_depth": attenuation,
+        stats = {"backscatter_share": backscatter_share,
+                 "backscatter_in_front_share": front_share, "attenuation_over_depth": attenuation,
                  "scene_depth_median": depth, "object_hit_share": float(hit.float().mean()),
                  "open_water_share": open_water, "open_water_image_share": image_water,
                  "track_colour_change": tracks or None,
@@ -235,6 +255,9 @@ class ModelSelection:
                       "open_water_share": c.medium.auto_open_water_share,
                       "margin_db": c.medium.auto_margin_db,
                       "margin_no_evidence_db": c.medium.auto_margin_no_evidence_db,
+                      "backscatter_evidence": c.medium.auto_backscatter_evidence,
+                      "backscatter_in_front_evidence":
+                          c.medium.auto_backscatter_in_front_evidence,
                       "veiling_brightness": c.medium.auto_veiling_brightness}
         decided_at = {"decided_at_step": self.step, "decided_at_progress": self._progress()}
         water_mode = self.model.medium.mode   # global, or veiling where the open water asks
@@ -245,6 +268,16 @@ class ModelSelection:
                       f"of the image (< {100 * c.medium.auto_backscatter_share:g}%) and attenuation "
                       f"over the median scene depth ({depth:.3g}) is {100 * attenuation:.2f}% "
                       f"(< {100 * c.medium.auto_attenuation:g}%): clear water, plain NeRF")
+            self.model.medium.set_mode(chosen)
+        elif not evidence and not c.medium.auto_race_without_evidence:
+            chosen = "off"
+            reason = (f"no evidence of water: the images show no open water, far wall or fading "
+                      f"with range, and the fitted water's backscatter makes up "
+                      f"{100 * backscatter_share:.0f}% of the image, {100 * front_share:.0f}% in "
+                      "front of the surfaces (evidence from "
+                      f"{100 * c.medium.auto_backscatter_evidence:g}% and "
+                      f"{100 * c.medium.auto_backscatter_in_front_evidence:g}%); a trial from a "
+                      "model trained with the water would favour it: no water, plain NeRF")
             self.model.medium.set_mode(chosen)
         else:
             trial = self._trial_steps(c.medium.auto_trial_share)
