@@ -80,11 +80,14 @@ def row(seed: int, selection: dict) -> str:
         + ("" if stats.get("validation_psnr_off_second_trial") is None else
            f" / {stats['validation_psnr_off_second_trial']:.2f}"))
     fading = stats.get("surface_attenuation_over_depth")
+    lower = stats.get("surface_attenuation_over_depth_lower")
     front = stats.get("backscatter_in_front_share")
     return (f"| {seed} | {selection['chosen']} | {selection['decided_at_step']} | "
             f"{100 * stats['backscatter_share']:.0f}% | "
-            f"{'-' if front is None else f'{100 * front:.0f}%'} | {100 * stats['object_hit_share']:.0f}% | "
-            f"{'-' if fading is None else f'{100 * fading:.0f}%'} | {race} | "
+            f"{'-' if front is None else f'{100 * front:.0f}%'} | "
+            f"{100 * stats['object_hit_share']:.0f}% | "
+            f"{'-' if fading is None else f'{100 * fading:.0f}%'}"
+            f"{'' if lower is None else f' ({100 * lower:.0f}%)'} | {race} | "
             f"{'; '.join(stats['evidence_of_water']) or 'none'} |")
 
 
@@ -117,8 +120,9 @@ def main() -> None:
              f"`python benchmarks/bench_decision_seeds.py {' '.join(sys.argv[1:])}`; "
              f"{cpu_name()}; {time.perf_counter() - started:.0f} s. No water at "
              f"{answers.count('off')} of {len(answers)} seeds.", "",
-             "| seed | chosen | at step | backscatter share | in front of surfaces | rays meeting a surface | "
-             "surface fading | race: water / no water / its second trial (dB) | evidence |",
+             "| seed | chosen | at step | backscatter share | in front of surfaces | "
+             "rays meeting a surface | surface fading (its lower end) | "
+             "race: water / no water / its second trial (dB) | evidence |",
              "|---:|---|---:|---:|---:|---:|---:|---|---|",
              *(row(seed, s) for seed, s in zip(seeds, selections)), ""]
     with open(args.out, "a") as out:

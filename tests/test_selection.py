@@ -96,17 +96,25 @@ def test_backscatter_is_evidence_only_in_front_of_the_surfaces(sigma_bs, evidenc
                for text in stats["evidence_of_water"]) == evidence, stats["evidence_of_water"]
 
 
-@pytest.mark.parametrize("surface_attn, evidence", [(0.0, False), (2.0, True)])
+@pytest.mark.parametrize("surface_attn, halfwidth, evidence", [
+    (0.0, 0.1, False),        # fern's own surfaces fit no attenuation
+    (2.0, 0.2, True),         # a simulated orbit's fade by 57-72%, at least 35-66%
+    (2.0, 2.0, False),        # a half-formed clear scene's: 23-42%, at least 0-5%
+    (2.0, math.inf, False)])
 def test_surfaces_that_fade_with_range_are_evidence_even_when_not_determined(
-        surface_attn, evidence, monkeypatch):
-    # fern's own surfaces fit no attenuation; a simulated orbit's faded by 57-67%
+        surface_attn, halfwidth, evidence, monkeypatch):
     trainer = _evidence_trainer(medium="global")
     monkeypatch.setattr(trainer, "assess_water", lambda: {
         "surface_fit": {"sigma_attn": [surface_attn] * 3},
+        "halfwidth95": {"sigma_attn": [halfwidth] * 3},
         "fit_determined": {"sigma_attn": [False] * 3}})
     monkeypatch.setattr(trainer, "_probe_psnr", lambda: 20.0)
-    found = trainer.select_medium()["statistics"]["evidence_of_water"]
+    stats = trainer.select_medium()["statistics"]
+    found = stats["evidence_of_water"]
     assert any("surfaces seen over a range" in text for text in found) == evidence, found
+    depth = stats["scene_depth_median"]
+    assert stats["surface_attenuation_over_depth_lower"] == pytest.approx(
+        -math.expm1(-max(surface_attn - halfwidth, 0.0) * depth))
 
 
 def test_the_surface_fit_is_spared_when_other_evidence_shows_water(monkeypatch):

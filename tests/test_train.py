@@ -221,7 +221,7 @@ def test_repeated_nan_stops_with_a_clear_error(default_scene):
 @pytest.mark.slow
 def test_clear_water_switches_the_medium_off(clear_scene, tmp_path):
     # At this toy size the decision comes at step 200 on a half-formed scene and its outcome
-    # rests on the seed (no water at 5 of seeds 0-5, 3 when it raced without evidence;
+    # rested on the seed (no water at 3 of seeds 0-5 when it raced without evidence, 6 of 6 now;
     # benchmark-sized clear orbits 4 of 4): docs/water.md, "Decided too early" and "No
     # evidence, no water". A change to the random stream that fails this test needs their runs.
     _train_cli(clear_scene / "cameras.json", tmp_path, "--steps", "500", "--batch-rays", "512")

@@ -233,14 +233,17 @@ class ModelSelection:
         ) if present)]
         # The surface fit costs seconds of the budget (12 s of a 90-s demo run) and can only
         # add evidence: it is made when nothing else shows water, where it decides.
-        surface_attenuation, determined = None, None
+        surface_attenuation, surface_lower, determined = None, None, None
         if not evidence:
-            surface_attenuation, determined = self._surface_fading(depth)
-            if (determined or surface_attenuation >= c.medium.auto_surface_fading) \
+            surface_attenuation, surface_lower, determined = self._surface_fading(depth)
+            # at the lower end of the fit's interval: a half-formed scene's surfaces are darker
+            # seen from further away (clear toy orbits: 23-42%, its lower end 0-5%)
+            if (determined or surface_lower >= c.medium.auto_surface_fading) \
                     and surface_attenuation > 2 * c.medium.auto_attenuation:
                 evidence.append(f"surfaces seen over a range of distances fade by "
                                 f"{100 * surface_attenuation:.0f}% over the median depth"
-                                + (" (attenuation determined)" if determined else ""))
+                                + (" (attenuation determined)" if determined else
+                                   f" (at least {100 * surface_lower:.0f}%)"))
         stats = {"backscatter_share": backscatter_share,
                  "backscatter_in_front_share": front_share, "attenuation_over_depth": attenuation,
                  "scene_depth_median": depth, "object_hit_share": float(hit.float().mean()),
@@ -248,6 +251,7 @@ class ModelSelection:
                  "track_colour_change": tracks or None,
                  "far_wall_share": wall,
                  "surface_attenuation_over_depth": surface_attenuation,
+                 "surface_attenuation_over_depth_lower": surface_lower,
                  "attenuation_determined": determined, "evidence_of_water": evidence,
                  "fitted_global": water, "validation_rays": len(self.probe)}
         thresholds = {"backscatter_share": c.medium.auto_backscatter_share,
@@ -265,8 +269,9 @@ class ModelSelection:
                 and attenuation < c.medium.auto_attenuation:
             chosen = "off"
             reason = (f"fitted water is negligible: backscatter is {100 * backscatter_share:.2f}% "
-                      f"of the image (< {100 * c.medium.auto_backscatter_share:g}%) and attenuation "
-                      f"over the median scene depth ({depth:.3g}) is {100 * attenuation:.2f}% "
+                      f"of the image (< {100 * c.medium.auto_backscatter_share:g}%) and "
+                      f"attenuation over the median scene depth ({depth:.3g}) is "
+                      f"{100 * attenuation:.2f}% "
                       f"(< {100 * c.medium.auto_attenuation:g}%): clear water, plain NeRF")
             self.model.medium.set_mode(chosen)
         elif not evidence and not c.medium.auto_race_without_evidence:

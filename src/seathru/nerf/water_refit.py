@@ -68,13 +68,19 @@ class WaterRefitting:
             flags.append(torch.tensor(held) if any(held) else None)
         return flags
 
-    def _surface_fading(self, depth: float) -> tuple[float, bool]:
+    def _surface_fading(self, depth: float) -> tuple[float, float, bool]:
         """How much the surfaces seen over a range of distances fade over ``depth`` by their
-        own water fit (``assess_water``), and whether their attenuation is determined."""
+        own water fit (``assess_water``): by its attenuation and by the lower end of its 95%
+        interval (the channel fading most each), and whether their attenuation is
+        determined."""
         assessment = self.assess_water() or {}
         determined = all(assessment.get("fit_determined", {}).get("sigma_attn", [False]))
-        return 1.0 - math.exp(-max(assessment.get("surface_fit", {}).get(
-            "sigma_attn", [0.0])) * depth), determined
+        attenuation = assessment.get("surface_fit", {}).get("sigma_attn", [0.0])
+        halfwidth = assessment.get("halfwidth95", {}).get("sigma_attn", [math.inf] * len(
+            attenuation))
+        lowest = max(max(value - width, 0.0) for value, width in zip(attenuation, halfwidth))
+        return (1.0 - math.exp(-max(attenuation) * depth), 1.0 - math.exp(-lowest * depth),
+                determined)
 
     @torch.no_grad()
     def _surface_data(self, seed: int, voxel_factors: Sequence[float] = (1.0,)
