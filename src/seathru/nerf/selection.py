@@ -185,9 +185,8 @@ class ModelSelection:
         were learnt under it and are each off by the attenuation once it is switched off. With
         ``auto_race_without_evidence`` the race is run anyway and the water must be better by
         ``auto_margin_no_evidence_db``, also after no water has trained a second trial. The
-        paper's fully
-        view-dependent water is never picked automatically: it can also absorb errors of a
-        half-trained scene; ask for it with ``medium.mode=view``.
+        paper's fully view-dependent water is never picked automatically: it can also absorb
+        errors of a half-trained scene; ask for it with ``medium.mode=view``.
         """
         c = self.config
         rendered = self.render_batch(self.probe)
