@@ -219,12 +219,14 @@ def test_repeated_nan_stops_with_a_clear_error(default_scene):
 
 
 @pytest.mark.slow
-def test_clear_water_switches_the_medium_off(clear_scene, tmp_path):
-    # At this toy size the decision comes at step 200 on a half-formed scene and its outcome
-    # rested on the seed (no water at 3 of seeds 0-5 when it raced without evidence, 6 of 6 now;
-    # benchmark-sized clear orbits 4 of 4): docs/water.md, "Decided too early" and "No
-    # evidence, no water". A change to the random stream that fails this test needs their runs.
-    _train_cli(clear_scene / "cameras.json", tmp_path, "--steps", "500", "--batch-rays", "512")
+@pytest.mark.parametrize("seed", [0, 4, 5])
+def test_clear_water_switches_the_medium_off(clear_scene, tmp_path, seed):
+    # At this toy size the decision comes at step 200 on a half-formed scene. Seed 4 kept the
+    # water on its fog (61% of the image as backscatter, 12% in front of the surfaces) and seed
+    # 5 on its surfaces fading by 42% (0% at the fit's lower end) before session 50: no water
+    # at 3 of seeds 0-5 then, 6 of 6 now (docs/water.md, "No evidence, no water").
+    _train_cli(clear_scene / "cameras.json", tmp_path, "--steps", "500", "--batch-rays", "512",
+               "--seed", str(seed))
     out = tmp_path / "train"
     selection = json.loads((out / "selection.json").read_text())
     water = json.loads((out / "water.json").read_text())
