@@ -248,7 +248,7 @@ class MediumConfig:
         0.25, help="auto: a water fit on the model's own surfaces (independent of the trained "
                    "water) whose attenuation fades the colour by this share over the median "
                    "depth at its 95% interval's lower end is evidence of water even when not "
-                   "determined (oceanic I orbits: 35-65%; clear toy orbits 0-5%, 23-42% by "
+                   "determined (oceanic I orbits: 35-65%; clear toy orbits 0-5%, up to 42% by "
                    "the fit itself; fern 0%)")
     auto_veiling_brightness: float = setting(
         0.1, help="auto: open water is evidence of water only where it is at least this share "

@@ -236,7 +236,7 @@ class ModelSelection:
         if not evidence:
             surface_attenuation, surface_lower, determined = self._surface_fading(depth)
             # at the lower end of the fit's interval: a half-formed scene's surfaces are darker
-            # seen from further away (clear toy orbits: 23-42%, its lower end 0-5%)
+            # seen from further away (clear toy orbits: up to 42%, its lower end 0-5%)
             if (determined or surface_lower >= c.medium.auto_surface_fading) \
                     and surface_attenuation > 2 * c.medium.auto_attenuation:
                 evidence.append(f"surfaces seen over a range of distances fade by "
